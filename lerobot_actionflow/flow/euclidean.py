@@ -1,0 +1,43 @@
+"""Rectified linear flow on flat vectors (App. B, Eq. 5-7).
+
+Path ``a_t = t a_1 + (1 - t) a_0`` from noise ``a_0 ~ N(0, I)`` (``t = 0``) to data ``a_1``
+(``t = 1``); target velocity ``u = a_1 - a_0`` (constant along the path); sampling by Euler
+steps ``a_{k+1} = a_k + v(a_k, t_k) (t_{k+1} - t_k)`` on a time grid from
+:mod:`lerobot_actionflow.flow.schedules`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import torch
+
+
+def linear_path(a0: torch.Tensor, a1: torch.Tensor, t: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Point on the path and its target velocity.
+
+    Args:
+        a0, a1: ``(B, ...)`` noise and data.
+        t: ``(B,)`` times in ``[0, 1]``.
+    Returns:
+        ``a_t`` and ``u = a_1 - a_0``, both ``(B, ...)``.
+    """
+    tt = t.reshape(-1, *([1] * (a0.ndim - 1)))
+    return tt * a1 + (1 - tt) * a0, a1 - a0
+
+
+def euler_sample(
+    velocity: Callable[[torch.Tensor, torch.Tensor], torch.Tensor], a0: torch.Tensor, times: torch.Tensor
+) -> torch.Tensor:
+    """Integrate ``da/dt = velocity(a, t)`` from ``times[0]`` to ``times[-1]``.
+
+    Args:
+        velocity: ``(a (B, ...), t (B,)) -> (B, ...)``.
+        a0: ``(B, ...)`` initial noise.
+        times: ``(K + 1,)`` increasing grid.
+    """
+    a = a0
+    for k in range(times.shape[0] - 1):
+        t = times[k].expand(a.shape[0])
+        a = a + velocity(a, t) * (times[k + 1] - times[k])
+    return a
