@@ -1,0 +1,18 @@
+"""Networks: Invariant Point Attention, the SE(3)-invariant transformer and ActionFlow's velocity
+field, the adaptation module, image encoders. No LeRobot or robosuite imports."""
+
+from lerobot_actionflow.nn.actionflow_network import ActionFlowNetwork, ObservationTokens
+from lerobot_actionflow.nn.dp_transformer import DPTransformer
+from lerobot_actionflow.nn.ipa import InvariantPointAttention
+from lerobot_actionflow.nn.pose_adaptation import PoseAdaptation
+from lerobot_actionflow.nn.se3_transformer import IPABlock, SE3InvariantTransformer
+
+__all__ = [
+    "ActionFlowNetwork",
+    "DPTransformer",
+    "IPABlock",
+    "InvariantPointAttention",
+    "ObservationTokens",
+    "PoseAdaptation",
+    "SE3InvariantTransformer",
+]

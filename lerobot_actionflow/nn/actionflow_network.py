@@ -1,0 +1,146 @@
+"""ActionFlow's velocity field ``v_theta(T_k, T_o, F_o, t)``: posed tokens through the
+SE(3)-invariant transformer (App. C, D, F, G).
+
+Tokens (``L = H_o N + H_o N_cam + H``):
+
+* observation entities, for each of the ``H_o`` history steps and ``N`` entity slots: pose
+  ``T_{h,e}``, feature ``E_entity[e] + E_history[h] + Linear(scalars_{h,e})`` (per-entity
+  invariant scalars, e.g. the gripper opening for the end-effector);
+* camera features (optional): ResNet18 features projected to ``C``, plus ``E_camera[c] +
+  E_history[h]``, posed at the entity that carries the camera (the EEF for a wrist camera);
+* action tokens, for each of the ``H`` horizon steps: the current (noisy) pose ``T_k`` and
+  feature ``E_step[k] + Linear(g_k)``.
+
+All poses pass through the adaptation module (reference: the EEF at the latest observation
+step), flow time conditions every block, and each action token reads out its local
+translation velocity ``v_p``, rotation velocity ``v_r`` and gripper velocity ``v_g``.
+Velocities are in the action token's own frame; ``v_p`` is returned in metres per unit time
+(the network's output divided by ``translation_scale``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import nn
+
+from lerobot_actionflow.nn.embeddings import SinusoidalTimeEmbedding
+from lerobot_actionflow.nn.pose_adaptation import PoseAdaptation
+from lerobot_actionflow.nn.se3_transformer import SE3InvariantTransformer
+
+
+@dataclass
+class ObservationTokens:
+    """Observation input of the network.
+
+    Attributes:
+        r: entity rotations ``(B, H_o, N, 3, 3)``; p: positions ``(B, H_o, N, 3)``; row 0 the EEF.
+        scalars: per-entity invariant scalars ``(B, H_o, N, S)`` or None.
+        image_features: ``(B, H_o, N_cam, F)`` encoder outputs or None.
+    """
+
+    r: torch.Tensor
+    p: torch.Tensor
+    scalars: torch.Tensor | None = None
+    image_features: torch.Tensor | None = None
+
+
+class ActionFlowNetwork(nn.Module):
+    def __init__(
+        self,
+        num_entities: int,
+        n_obs_steps: int,
+        horizon: int,
+        num_scalars: int = 0,
+        camera_entities: tuple[int, ...] = (),
+        image_feature_dim: int = 512,
+        dim: int = 128,
+        depth: int = 4,
+        num_heads: int = 8,
+        head_dim: int = 16,
+        num_query_points: int = 4,
+        num_value_points: int = 8,
+        mlp_ratio: float = 2.0,
+        dropout: float = 0.0,
+        adaptation: PoseAdaptation | None = None,
+    ):
+        super().__init__()
+        self.num_entities, self.n_obs_steps, self.horizon = num_entities, n_obs_steps, horizon
+        self.num_scalars = num_scalars
+        self.camera_entities = tuple(camera_entities)
+        for e in self.camera_entities:
+            if not 0 <= e < num_entities:
+                raise ValueError(f"camera entity index {e} is outside 0..{num_entities - 1}")
+        self.adaptation = adaptation if adaptation is not None else PoseAdaptation()
+        self.entity_embed = nn.Parameter(torch.randn(num_entities, dim) * 0.02)
+        self.history_embed = nn.Parameter(torch.randn(n_obs_steps, dim) * 0.02)
+        self.step_embed = nn.Parameter(torch.randn(horizon, dim) * 0.02)
+        self.scalar_proj = nn.Linear(num_scalars, dim) if num_scalars else None
+        self.gripper_proj = nn.Linear(1, dim)
+        if self.camera_entities:
+            self.camera_embed = nn.Parameter(torch.randn(len(self.camera_entities), dim) * 0.02)
+            self.image_proj = nn.Linear(image_feature_dim, dim)
+        self.time_embed = SinusoidalTimeEmbedding(dim)
+        self.transformer = SE3InvariantTransformer(
+            dim, depth, num_heads, head_dim, num_query_points, num_value_points, mlp_ratio, dropout
+        )
+        self.head = nn.Sequential(nn.LayerNorm(dim), nn.Linear(dim, 7))
+
+    def encode_observations(self, obs: ObservationTokens) -> tuple[torch.Tensor, ...]:
+        """Observation tokens, computed once per chunk: features ``(B, L_o, C)``, frames
+        ``(B, L_o, 3, 3), (B, L_o, 3)`` (not yet adapted) and the reference frame."""
+        b, h_o, n = obs.p.shape[:3]
+        if (h_o, n) != (self.n_obs_steps, self.num_entities):
+            raise ValueError(
+                f"observation poses have {h_o} history steps x {n} entities, the network expects "
+                f"{self.n_obs_steps} x {self.num_entities}"
+            )
+        f = self.entity_embed[None, None] + self.history_embed[None, :, None]
+        f = f.expand(b, h_o, n, -1)
+        if self.scalar_proj is not None:
+            f = f + self.scalar_proj(obs.scalars)
+        r, p = obs.r, obs.p
+        if self.camera_entities:
+            cam = self.image_proj(obs.image_features) + self.camera_embed + self.history_embed[:, None]
+            idx = list(self.camera_entities)
+            f = torch.cat((f, cam), 2)
+            r = torch.cat((r, r[:, :, idx]), 2)
+            p = torch.cat((p, p[:, :, idx]), 2)
+        l_o = f.shape[1] * f.shape[2]
+        return (
+            f.reshape(b, l_o, -1),
+            r.reshape(b, l_o, 3, 3),
+            p.reshape(b, l_o, 3),
+            obs.r[:, -1, 0],
+            obs.p[:, -1, 0],
+        )
+
+    def velocity(
+        self,
+        encoded: tuple[torch.Tensor, ...],
+        r: torch.Tensor,
+        p: torch.Tensor,
+        g: torch.Tensor,
+        t: torch.Tensor,
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Local velocities of the action tokens.
+
+        Args:
+            encoded: output of :meth:`encode_observations`.
+            r, p, g: current action chunk ``(B, H, 3, 3), (B, H, 3), (B, H)``.
+            t: flow time ``(B,)``.
+        Returns:
+            ``v_p (B, H, 3)`` in metres, ``v_r (B, H, 3)``, ``v_g (B, H)``.
+        """
+        f_o, r_o, p_o, r_ref, p_ref = encoded
+        f_a = self.step_embed[None] + self.gripper_proj(g[..., None])
+        f = torch.cat((f_o, f_a), 1)
+        r_all, p_all = self.adaptation(r_ref, p_ref, torch.cat((r_o, r), 1), torch.cat((p_o, p), 1))
+        out = self.transformer(f, r_all, p_all, self.time_embed(t))
+        v = self.head(out[:, f_o.shape[1] :])
+        return v[..., :3] / self.adaptation.translation_scale, v[..., 3:6], v[..., 6]
+
+    def forward(self, obs: ObservationTokens, r, p, g, t):
+        """One evaluation ``v_theta``; see :meth:`velocity`."""
+        return self.velocity(self.encode_observations(obs), r, p, g, t)

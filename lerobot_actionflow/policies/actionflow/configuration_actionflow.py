@@ -1,0 +1,204 @@
+"""Configuration of the ActionFlow policy (LeRobot policy type ``actionflow``)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from lerobot.configs.policies import PreTrainedConfig
+from lerobot.configs.types import FeatureType, NormalizationMode
+from lerobot.optim.optimizers import AdamWConfig
+from lerobot.optim.schedulers import CosineAnnealingWithWarmupSchedulerConfig
+
+from lerobot_actionflow.schema import ACTION_DIM, POSES_KEY
+
+
+@PreTrainedConfig.register_subclass("actionflow")
+@dataclass
+class ActionflowConfig(PreTrainedConfig):
+    """ActionFlow: SE(3) flow matching on end-effector action poses with an IPA transformer.
+
+    Inputs: ``observation.poses`` ``(N, 7)`` (required; row 0 the end-effector), optional
+    ``observation.state`` (only the invariant entries named by ``state_scalar_indices``, e.g.
+    the gripper opening, are used) and optional images. Output: ``action`` ``(10,)`` =
+    absolute EEF target ``[x, y, z, rot6d, gripper]``.
+
+    Poses and actions are never mean/std normalised (that would break equivariance); the
+    network's adaptation module handles scale instead.
+
+    Attributes (the paper's values in brackets where it gives them):
+        n_obs_steps: observation history [5 on the real robot; 2 here by default].
+        horizon: action chunk length [16].
+        n_action_steps: actions executed per chunk before re-planning.
+        state_scalar_indices: entries of ``observation.state`` fed to the EEF token as
+            invariant scalars (default: the two gripper finger positions of the schema).
+        camera_entities: for each image feature, in ``input_features`` order, the entity slot
+            whose pose carries that camera's token (0 = EEF, right for a wrist camera). Empty:
+            every camera on the EEF.
+        dim, num_layers [4], num_heads, head_dim, num_query_points, num_value_points,
+            mlp_ratio, dropout: the SE(3)-invariant transformer.
+        adaptation_frame, translation_scale [10], squash_translations [tanh]: App. F.2.
+        noise_sigma: std of the initial translation noise around the EEF (metres).
+        noise_rotation: ``"uniform"`` or ``"concentrated"`` (around the EEF orientation,
+            ``Exp(noise_kappa * eps)``).
+        num_inference_steps [4]: Euler steps K; may be changed at inference time.
+        time_spacing: ``"uniform"`` or ``"exponential"`` (App. E), with ``time_spacing_rate``.
+        train_time_distribution: ``"uniform"`` or ``"beta"`` (``train_time_beta``).
+        loss_weight_*: weights of the translation / rotation / gripper velocity errors.
+        image_size [80x80], image_encoder_weights: ResNet18 input size and an optional local
+            weights file (never downloaded).
+        compile_sampler: capture the whole K-step sampler with ``torch.compile`` (mode
+            ``compile_mode``; "reduce-overhead" uses CUDA graphs on a GPU). Off by default.
+    """
+
+    n_obs_steps: int = 2
+    horizon: int = 16
+    n_action_steps: int = 8
+
+    normalization_mapping: dict[str, NormalizationMode] = field(
+        default_factory=lambda: {
+            "VISUAL": NormalizationMode.MEAN_STD,
+            "STATE": NormalizationMode.MEAN_STD,
+            "ENV": NormalizationMode.IDENTITY,
+            "ACTION": NormalizationMode.IDENTITY,
+        }
+    )
+
+    state_scalar_indices: tuple[int, ...] = (9, 10)
+    camera_entities: tuple[int, ...] = ()
+
+    dim: int = 128
+    num_layers: int = 4
+    num_heads: int = 8
+    head_dim: int = 16
+    num_query_points: int = 4
+    num_value_points: int = 8
+    mlp_ratio: float = 2.0
+    dropout: float = 0.0
+
+    adaptation_frame: str = "eef"
+    translation_scale: float = 10.0
+    squash_translations: bool = True
+
+    noise_sigma: float = 0.1
+    noise_rotation: str = "uniform"
+    noise_kappa: float = 0.5
+    num_inference_steps: int = 4
+    time_spacing: str = "uniform"
+    time_spacing_rate: float = 2.0
+    train_time_distribution: str = "uniform"
+    train_time_beta: tuple[float, float] = (1.5, 1.0)
+
+    loss_weight_translation: float = 1.0
+    loss_weight_rotation: float = 1.0
+    loss_weight_gripper: float = 1.0
+
+    image_size: tuple[int, int] | None = (80, 80)
+    image_encoder_weights: str | None = None
+
+    rotation_tolerance: float = 1e-2
+
+    compile_sampler: bool = False
+    compile_mode: str = "reduce-overhead"
+
+    optimizer_lr: float = 1e-4
+    optimizer_betas: tuple[float, float] = (0.9, 0.999)
+    optimizer_eps: float = 1e-8
+    optimizer_weight_decay: float = 1e-4
+    optimizer_grad_clip_norm: float = 1.0
+    scheduler_warmup_steps: int = 500
+
+    def __post_init__(self):
+        super().__post_init__()
+        if self.n_obs_steps < 1 or self.horizon < 1:
+            raise ValueError(f"n_obs_steps and horizon must be >= 1, got {self.n_obs_steps}, {self.horizon}")
+        if not 1 <= self.n_action_steps <= self.horizon:
+            raise ValueError(
+                f"n_action_steps must be in 1..horizon={self.horizon}, got {self.n_action_steps}"
+            )
+        if self.num_inference_steps < 1:
+            raise ValueError(f"num_inference_steps must be >= 1, got {self.num_inference_steps}")
+        if self.time_spacing not in ("uniform", "exponential"):
+            raise ValueError(f"time_spacing must be 'uniform' or 'exponential', got {self.time_spacing!r}")
+        if self.noise_rotation not in ("uniform", "concentrated"):
+            raise ValueError(
+                f"noise_rotation must be 'uniform' or 'concentrated', got {self.noise_rotation!r}"
+            )
+        if self.train_time_distribution not in ("uniform", "beta"):
+            raise ValueError(
+                f"train_time_distribution must be 'uniform' or 'beta', got {self.train_time_distribution!r}"
+            )
+        if self.noise_sigma <= 0:
+            raise ValueError(f"noise_sigma must be > 0, got {self.noise_sigma}")
+
+    # -- LeRobot hooks -------------------------------------------------------------------------
+    @property
+    def observation_delta_indices(self) -> list[int]:
+        return list(range(1 - self.n_obs_steps, 1))
+
+    @property
+    def action_delta_indices(self) -> list[int]:
+        # The chunk starts at the current step.
+        return list(range(self.horizon))
+
+    @property
+    def reward_delta_indices(self) -> None:
+        return None
+
+    def get_optimizer_preset(self) -> AdamWConfig:
+        return AdamWConfig(
+            lr=self.optimizer_lr,
+            betas=self.optimizer_betas,
+            eps=self.optimizer_eps,
+            weight_decay=self.optimizer_weight_decay,
+            grad_clip_norm=self.optimizer_grad_clip_norm,
+        )
+
+    def get_scheduler_preset(self) -> CosineAnnealingWithWarmupSchedulerConfig:
+        # Linear warm-up, then cosine annealing over the rest of the run (--steps).
+        return CosineAnnealingWithWarmupSchedulerConfig(num_warmup_steps=self.scheduler_warmup_steps)
+
+    @property
+    def poses_feature(self):
+        return (self.input_features or {}).get(POSES_KEY)
+
+    def validate_features(self) -> None:
+        """Refuse a feature set the policy cannot use, naming the feature and shape."""
+        ft = self.poses_feature
+        if ft is None:
+            raise ValueError(
+                f"actionflow needs the input feature '{POSES_KEY}' (N, 7) [x y z qw qx qy qz], row 0 the "
+                f"end-effector; got input features {sorted(self.input_features or {})}"
+            )
+        if len(ft.shape) != 2 or ft.shape[1] != 7 or ft.shape[0] < 1:
+            raise ValueError(f"'{POSES_KEY}' must have shape (N, 7), got {tuple(ft.shape)}")
+        act = self.action_feature
+        if act is None:
+            raise ValueError("actionflow needs the output feature 'action' (10,)")
+        if tuple(act.shape) != (ACTION_DIM,):
+            raise ValueError(
+                f"'action' must have shape ({ACTION_DIM},) [x y z rot6d(6) gripper], got {tuple(act.shape)}"
+            )
+        state = self.robot_state_feature
+        if state is not None and self.state_scalar_indices:
+            bad = [i for i in self.state_scalar_indices if not 0 <= i < state.shape[0]]
+            if bad:
+                raise ValueError(
+                    f"state_scalar_indices {bad} are outside 'observation.state' of shape "
+                    f"{tuple(state.shape)}"
+                )
+        n_cam = len(self.image_features)
+        if self.camera_entities and len(self.camera_entities) != n_cam:
+            raise ValueError(
+                f"camera_entities has {len(self.camera_entities)} entries for {n_cam} image features "
+                f"{list(self.image_features)}"
+            )
+        for e in self.camera_entities:
+            if not 0 <= e < ft.shape[0]:
+                raise ValueError(f"camera entity {e} is outside the {ft.shape[0]} entities of '{POSES_KEY}'")
+        for key, img in self.image_features.items():
+            if img.type is FeatureType.VISUAL and len(img.shape) != 3:
+                raise ValueError(f"image feature '{key}' must be (C, H, W), got {tuple(img.shape)}")
+
+    @property
+    def num_scalars(self) -> int:
+        return len(self.state_scalar_indices) if self.robot_state_feature is not None else 0

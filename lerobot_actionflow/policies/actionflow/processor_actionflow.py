@@ -1,0 +1,42 @@
+"""Pre/post-processing pipelines of the ActionFlow policy.
+
+Pre: rename -> add batch dim -> device -> normalise. Normalisation is restricted, per feature,
+to what may be normalised: ``observation.poses`` and ``action`` are passed through untouched
+whatever ``normalization_mapping`` says, because mean/std scaling of positions would break
+SE(3) equivariance (the network's adaptation module handles scale). Post: to CPU (actions are
+absolute poses already).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import torch
+from lerobot.processor import PolicyAction, PolicyProcessorPipeline
+from lerobot.processor.factory import make_default_policy_processor_steps, make_policy_processor_pipelines
+from lerobot.processor.normalize_processor import NormalizerProcessorStep
+
+from lerobot_actionflow.policies.actionflow.configuration_actionflow import ActionflowConfig
+from lerobot_actionflow.schema import ACTION_KEY, POSES_KEY
+
+#: Features never normalised: they are poses.
+POSE_FEATURES = (POSES_KEY, ACTION_KEY)
+
+
+def make_actionflow_pre_post_processors(
+    config: ActionflowConfig,
+    dataset_stats: dict[str, dict[str, torch.Tensor]] | None = None,
+) -> tuple[
+    PolicyProcessorPipeline[dict[str, Any], dict[str, Any]],
+    PolicyProcessorPipeline[PolicyAction, PolicyAction],
+]:
+    steps = make_default_policy_processor_steps(config, dataset_stats)
+    normalize = NormalizerProcessorStep(
+        features={k: ft for k, ft in config.input_features.items() if k not in POSE_FEATURES},
+        norm_map=config.normalization_mapping,
+        stats=dataset_stats,
+    )
+    return make_policy_processor_pipelines(
+        input_steps=[steps.rename_observations, steps.add_batch_dim, steps.to_device, normalize],
+        output_steps=[steps.to_cpu],
+    )
