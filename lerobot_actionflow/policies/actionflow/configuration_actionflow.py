@@ -23,14 +23,18 @@ class ActionflowConfig(PreTrainedConfig):
     absolute EEF target ``[x, y, z, rot6d, gripper]``.
 
     Poses and actions are never mean/std normalised (that would break equivariance); the
-    network's adaptation module handles scale instead.
+    network's adaptation module handles scale instead. ``observation.poses`` is a STATE feature
+    to LeRobot, and LeRobot re-applies ``normalization_mapping`` to every feature when it reloads
+    processors (``--resume``, ``--policy.path``), so STATE and ACTION must map to IDENTITY: the
+    config refuses anything else.
 
     Attributes (the paper's values in brackets where it gives them):
         n_obs_steps: observation history [5 on the real robot; 2 here by default].
         horizon: action chunk length [16].
         n_action_steps: actions executed per chunk before re-planning.
         state_scalar_indices: entries of ``observation.state`` fed to the EEF token as
-            invariant scalars (default: the two gripper finger positions of the schema).
+            invariant scalars (default: the two gripper finger positions of the schema), times
+            ``state_scalar_scale`` (Panda finger positions are within 0.04 m: 25 brings them to ~1).
         camera_entities: for each image feature, in ``input_features`` order, the entity slot
             whose pose carries that camera's token (0 = EEF, right for a wrist camera). Empty:
             every camera on the EEF.
@@ -57,13 +61,14 @@ class ActionflowConfig(PreTrainedConfig):
     normalization_mapping: dict[str, NormalizationMode] = field(
         default_factory=lambda: {
             "VISUAL": NormalizationMode.MEAN_STD,
-            "STATE": NormalizationMode.MEAN_STD,
+            "STATE": NormalizationMode.IDENTITY,
             "ENV": NormalizationMode.IDENTITY,
             "ACTION": NormalizationMode.IDENTITY,
         }
     )
 
     state_scalar_indices: tuple[int, ...] = (9, 10)
+    state_scalar_scale: float = 25.0
     camera_entities: tuple[int, ...] = ()
 
     dim: int = 128
@@ -127,6 +132,13 @@ class ActionflowConfig(PreTrainedConfig):
             raise ValueError(
                 f"train_time_distribution must be 'uniform' or 'beta', got {self.train_time_distribution!r}"
             )
+        for kind in ("STATE", "ACTION"):
+            mode = self.normalization_mapping.get(kind, NormalizationMode.IDENTITY)
+            if mode is not NormalizationMode.IDENTITY:
+                raise ValueError(
+                    f"normalization_mapping['{kind}'] must be IDENTITY for actionflow, got {mode}: "
+                    "observation.poses and action are poses, and normalising them breaks SE(3) equivariance"
+                )
         if self.noise_sigma <= 0:
             raise ValueError(f"noise_sigma must be > 0, got {self.noise_sigma}")
 

@@ -212,7 +212,7 @@ class ActionflowPolicy(PreTrainedPolicy):
                     f"got {tuple(state.shape)}"
                 )
             check_finite(state, STATE_KEY)
-            eef_scalars = state[..., list(cfg.state_scalar_indices)]
+            eef_scalars = state[..., list(cfg.state_scalar_indices)] * cfg.state_scalar_scale
             scalars = torch.zeros(
                 b, cfg.n_obs_steps, self.num_entities, cfg.num_scalars, dtype=r.dtype, device=r.device
             )

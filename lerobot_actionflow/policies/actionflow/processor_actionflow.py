@@ -14,7 +14,7 @@ from typing import Any
 import torch
 from lerobot.processor import PolicyAction, PolicyProcessorPipeline
 from lerobot.processor.factory import make_default_policy_processor_steps, make_policy_processor_pipelines
-from lerobot.processor.normalize_processor import NormalizerProcessorStep
+from lerobot.processor.normalize_processor import NormalizerProcessorStep, UnnormalizerProcessorStep
 
 from lerobot_actionflow.policies.actionflow.configuration_actionflow import ActionflowConfig
 from lerobot_actionflow.schema import ACTION_KEY, POSES_KEY
@@ -36,7 +36,14 @@ def make_actionflow_pre_post_processors(
         norm_map=config.normalization_mapping,
         stats=dataset_stats,
     )
+    # Kept (as a pass-through for the pose action) so that the pipeline has the step LeRobot
+    # addresses by name when it reloads processors, e.g. on --resume.
+    unnormalize = UnnormalizerProcessorStep(
+        features={k: ft for k, ft in config.output_features.items() if k not in POSE_FEATURES},
+        norm_map=config.normalization_mapping,
+        stats=dataset_stats,
+    )
     return make_policy_processor_pipelines(
         input_steps=[steps.rename_observations, steps.add_batch_dim, steps.to_device, normalize],
-        output_steps=[steps.to_cpu],
+        output_steps=[unnormalize, steps.to_cpu],
     )

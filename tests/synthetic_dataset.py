@@ -1,0 +1,66 @@
+"""Tiny LeRobotDatasets in the project's schema, written by the tests themselves."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from lerobot_actionflow import geometry as g
+from lerobot_actionflow.geometry.se3 import compose, rp_to_pose7, rp_to_pose9
+from lerobot_actionflow.schema import pose_to_action
+
+
+def schema_features(num_objects: int, image_shape: tuple[int, int, int] | None = None) -> dict:
+    """LeRobotDataset feature spec of the schema (see ``lerobot_actionflow.schema``)."""
+    n = num_objects + 1
+    feats = {
+        "observation.poses": {"dtype": "float32", "shape": (n, 7), "names": None},
+        "observation.state": {"dtype": "float32", "shape": (11,), "names": None},
+        "observation.environment_state": {"dtype": "float32", "shape": (9 * num_objects,), "names": None},
+        "action": {"dtype": "float32", "shape": (10,), "names": None},
+    }
+    if image_shape is not None:
+        feats["observation.images.wrist"] = {
+            "dtype": "image",
+            "shape": image_shape,
+            "names": ["height", "width", "channels"],
+        }
+    return feats
+
+
+def make_reach_dataset(
+    root: Path, repo_id: str = "local/reach", episodes: int = 3, length: int = 24, seed: int = 0
+) -> Path:
+    """Episodes in which the EEF moves in a straight line to a grasp pose above one object."""
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    gen = torch.Generator().manual_seed(seed)
+    ds = LeRobotDataset.create(
+        repo_id=repo_id, fps=20, features=schema_features(1), root=root, use_videos=False
+    )
+    for _ in range(episodes):
+        r_o = g.exp(torch.tensor([0.0, 0.0, 1.0]) * (torch.rand(1, generator=gen) * 6.28 - 3.14))
+        p_o = torch.tensor([0.0, 0.0, 0.82]) + 0.1 * torch.randn(3, generator=gen) * torch.tensor(
+            [1.0, 1.0, 0.0]
+        )
+        r_goal, p_goal = compose(
+            r_o, p_o, g.exp(torch.tensor([3.14159, 0.0, 0.0])), torch.tensor([0.0, 0.0, 0.03])
+        )
+        r_cur, p_cur = g.exp(torch.tensor([3.14159, 0.0, 0.0])), torch.tensor([-0.1, 0.0, 1.0])
+        r_start, p_start = r_cur, p_cur
+        for k in range(length):
+            s = min(1.0, (k + 1) / (length // 2))
+            r_next, p_next = g.interpolate(r_start, r_goal, s), (1 - s) * p_start + s * p_goal
+            frame = {
+                "observation.poses": rp_to_pose7(torch.stack((r_cur, r_o)), torch.stack((p_cur, p_o))),
+                "observation.state": torch.cat((rp_to_pose9(r_cur, p_cur), torch.tensor([0.04, -0.04]))),
+                "observation.environment_state": rp_to_pose9(r_o, p_o),
+                "action": pose_to_action(r_next, p_next, torch.tensor(1.0 if s >= 1.0 else -1.0)),
+            }
+            ds.add_frame({**{k2: v.numpy().astype(np.float32) for k2, v in frame.items()}, "task": "reach"})
+            r_cur, p_cur = r_next, p_next
+        ds.save_episode()
+    ds.finalize()
+    return root
