@@ -10,7 +10,10 @@ from __future__ import annotations
 import importlib
 
 #: Modules whose import registers a LeRobot config subclass (policy or env type).
-PLUGIN_MODULES: tuple[str, ...] = ()
+PLUGIN_MODULES: tuple[str, ...] = (
+    "lerobot_actionflow.policies.actionflow.configuration_actionflow",
+    "lerobot_actionflow.envs.configuration",
+)
 
 
 def register_all() -> tuple[str, ...]:
