@@ -48,15 +48,15 @@ class InvariantPointAttention(nn.Module):
         super().__init__()
         self.num_heads, self.head_dim = num_heads, head_dim
         self.num_query_points, self.num_value_points = num_query_points, num_value_points
-        self.to_qkv = nn.Linear(dim, 3 * num_heads * head_dim, bias=False)
-        self.to_qk_points = nn.Linear(dim, 2 * num_heads * num_query_points * 3)
-        self.to_v_points = nn.Linear(dim, num_heads * num_value_points * 3)
+        # One projection for everything: scalar q, k, v (3 H c) and the local points q, k (2 H N_qp 3)
+        # and v (H N_pv 3); a single matmul is what matters at batch 1.
+        self._split = (3 * num_heads * head_dim, num_heads * (2 * num_query_points + num_value_points) * 3)
+        self.to_inputs = nn.Linear(dim, sum(self._split))
         # softplus(0.5413) = 1: every head starts with unit point weight.
         self.point_weight = nn.Parameter(torch.full((num_heads,), math.log(math.e - 1)))
         self.w_l = 1.0 / math.sqrt(3 * head_dim)
         self.w_c = math.sqrt(2.0 / (9 * num_query_points))
-        out_in = num_heads * (head_dim + num_value_points * 4)
-        self.to_out = nn.Linear(out_in, dim)
+        self.to_out = nn.Linear(num_heads * (head_dim + num_value_points * 4), dim)
 
     def forward(
         self, f: torch.Tensor, r: torch.Tensor, p: torch.Tensor, mask: torch.Tensor | None = None
@@ -66,34 +66,38 @@ class InvariantPointAttention(nn.Module):
             mask: optional boolean ``(B, L, L)`` or ``(L, L)``, True where token i may attend j.
         Returns:
             ``(B, L, C)`` invariant updates.
+
+        The point term is folded into one dot-product attention call:
+        ``-g |x_i - y_j|^2 = 2 g x_i.y_j - g |y_j|^2 - g |x_i|^2``, and the last term is constant
+        over ``j``, so it cancels in the softmax. Queries ``[w_L q, 2 g q^p, 1]`` against keys
+        ``[k, k^p, -g |k^p|^2]`` give exactly the logits above, and values ``[v, T_j v^p]`` give
+        both outputs at once. Frames are first centred on their mean position (a global
+        translation, which changes nothing mathematically) to keep ``|y|^2`` small in float32.
         """
         b, n, _ = f.shape
         h, c, pq, pv = self.num_heads, self.head_dim, self.num_query_points, self.num_value_points
-        q, k, v = self.to_qkv(f).view(b, n, 3, h, c).unbind(2)  # (B, L, H, c)
+        scalars, points = self.to_inputs(f).split(self._split, -1)
+        q, k, v = scalars.view(b, n, 3, h, c).unbind(2)  # (B, L, H, c)
 
-        def to_world(x: torch.Tensor, npts: int) -> torch.Tensor:
-            x = x.view(b, n, h * npts, 3)
-            return torch.einsum("blij,blmj->blmi", r, x) + p[:, :, None, :]
+        p = p - p.mean(1, keepdim=True)
+        pts = points.view(b, n, h * (2 * pq + pv), 3)
+        pts = torch.einsum("blij,blmj->blmi", r, pts) + p[:, :, None, :]  # world frame
+        pts = pts.view(b, n, h, (2 * pq + pv) * 3)
+        q_pts, k_pts, v_pts = pts.split((pq * 3, pq * 3, pv * 3), -1)
 
-        qk_pts = self.to_qk_points(f).view(b, n, 2, h * pq * 3)
-        q_pts = to_world(qk_pts[:, :, 0], pq).view(b, n, h, pq * 3)
-        k_pts = to_world(qk_pts[:, :, 1], pq).view(b, n, h, pq * 3)
-        v_pts = to_world(self.to_v_points(f), pv).view(b, n, h, pv * 3)
-
-        # Squared point distances, summed over the points of a head; the direct difference keeps
-        # float32 invariance tight where |x|^2 + |y|^2 - 2 x.y would cancel.
-        gamma = F.softplus(self.point_weight) * self.w_c / 2  # (H,)
-        diff = q_pts[:, :, None] - k_pts[:, None, :]  # (B, L, L, H, 3 N_qp)
-        point_logits = (diff * diff).sum(-1).permute(0, 3, 1, 2)  # (B, H, L, L)
-        logits = self.w_l * torch.einsum("bihd,bjhd->bhij", q, k) - gamma[:, None, None] * point_logits
+        gamma = (F.softplus(self.point_weight) * (self.w_c / 2))[:, None]  # (H, 1)
+        ones = torch.ones_like(q[..., :1])
+        query = torch.cat((self.w_l * q, 2 * gamma * q_pts, ones), -1)
+        key = torch.cat((k, k_pts, -gamma * (k_pts * k_pts).sum(-1, keepdim=True)), -1)
+        value = torch.cat((v, v_pts), -1)
         if mask is not None:
-            logits = logits.masked_fill(~(mask if mask.ndim == 3 else mask[None])[:, None], float("-inf"))
-        attn = logits.softmax(-1)  # (B, H, L, L)
-
-        o = torch.einsum("bhij,bjhd->bihd", attn, v).reshape(b, n, h * c)
-        o_pts_world = torch.einsum("bhij,bjhd->bihd", attn, v_pts).reshape(b, n, h * pv, 3)
-        # T_i^{-1} y = R_i^T (y - p_i)
-        o_pts = torch.einsum("blji,blmj->blmi", r, o_pts_world - p[:, :, None, :])
+            mask = (mask if mask.ndim == 3 else mask[None])[:, None]
+        out = F.scaled_dot_product_attention(
+            query.transpose(1, 2), key.transpose(1, 2), value.transpose(1, 2), attn_mask=mask, scale=1.0
+        ).transpose(1, 2)  # (B, L, H, c + 3 N_pv)
+        o, o_pts = out.split((c, pv * 3), -1)
+        # Back into token i's frame: T_i^{-1} y = R_i^T (y - p_i).
+        o_pts = o_pts.reshape(b, n, h * pv, 3) - p[:, :, None, :]
+        o_pts = torch.einsum("blji,blmj->blmi", r, o_pts)
         o_norm = torch.sqrt((o_pts * o_pts).sum(-1) + 1e-8)
-        out = torch.cat((o, o_pts.reshape(b, n, h * pv * 3), o_norm), -1)
-        return self.to_out(out)
+        return self.to_out(torch.cat((o.reshape(b, n, h * c), o_pts.reshape(b, n, h * pv * 3), o_norm), -1))

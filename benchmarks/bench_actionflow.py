@@ -1,0 +1,167 @@
+"""ActionFlow speed: one chunk's latency at batch 1, training throughput, parameter count.
+
+Prints one JSON object. Default model: 4 IPA layers, history 2, horizon 16, 5 entities (EEF +
+4 objects), state scalars, no images (``--image`` adds an 80x80 wrist camera). Latency is
+measured for K in {2, 4, 10} eagerly and with the fast-inference option
+(``compile_sampler``: ``torch.compile`` of the whole K-step sampler; on CUDA its
+"reduce-overhead" mode replays CUDA graphs).
+
+    python benchmarks/bench_actionflow.py                 # CPU, and CUDA when present
+    python benchmarks/bench_actionflow.py --device cpu --no-fast --repeats 50
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import statistics
+import time
+
+import torch
+from lerobot.configs.types import FeatureType, PolicyFeature
+
+from lerobot_actionflow import geometry as g
+from lerobot_actionflow.geometry.se3 import rp_to_pose7
+from lerobot_actionflow.policies.actionflow.configuration_actionflow import ActionflowConfig
+from lerobot_actionflow.policies.actionflow.modeling_actionflow import ActionflowPolicy
+from lerobot_actionflow.schema import pose_to_action
+
+
+def make_config(args, device: str, fast: bool) -> ActionflowConfig:
+    inputs = {
+        "observation.poses": PolicyFeature(FeatureType.STATE, (args.entities, 7)),
+        "observation.state": PolicyFeature(FeatureType.STATE, (11,)),
+    }
+    if args.image:
+        inputs["observation.images.wrist"] = PolicyFeature(FeatureType.VISUAL, (3, 80, 80))
+    return ActionflowConfig(
+        n_obs_steps=args.n_obs_steps,
+        horizon=args.horizon,
+        num_layers=args.layers,
+        input_features=inputs,
+        output_features={"action": PolicyFeature(FeatureType.ACTION, (10,))},
+        device=device,
+        compile_sampler=fast,
+        compile_mode="reduce-overhead" if device == "cuda" else "default",
+    )
+
+
+def make_batch(cfg: ActionflowConfig, batch_size: int, device: str) -> dict:
+    gen = torch.Generator().manual_seed(0)
+    n = cfg.input_features["observation.poses"].shape[0]
+    r = g.random_rotation(batch_size, cfg.n_obs_steps, n, generator=gen)
+    p = 0.2 * torch.randn(batch_size, cfg.n_obs_steps, n, 3, generator=gen)
+    batch = {
+        "observation.poses": rp_to_pose7(r, p),
+        "observation.state": torch.randn(batch_size, cfg.n_obs_steps, 11, generator=gen),
+        "action": pose_to_action(
+            g.random_rotation(batch_size, cfg.horizon, generator=gen),
+            0.1 * torch.randn(batch_size, cfg.horizon, 3, generator=gen),
+            torch.rand(batch_size, cfg.horizon, generator=gen) * 2 - 1,
+        ),
+    }
+    for key, ft in cfg.image_features.items():
+        batch[key] = torch.rand(batch_size, cfg.n_obs_steps, *ft.shape, generator=gen)
+    return {k: v.to(device) for k, v in batch.items()}
+
+
+def _sync(device: str) -> None:
+    if device == "cuda":
+        torch.cuda.synchronize()
+
+
+def time_chunk(policy, batch, k: int, device: str, warmup: int, repeats: int) -> dict:
+    obs = {key: v for key, v in batch.items() if key != "action"}
+    t0 = time.perf_counter()
+    policy.predict_action_chunk(obs, num_inference_steps=k)
+    _sync(device)
+    first = time.perf_counter() - t0
+    for _ in range(warmup):
+        policy.predict_action_chunk(obs, num_inference_steps=k)
+    _sync(device)
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        policy.predict_action_chunk(obs, num_inference_steps=k)
+        _sync(device)
+        times.append((time.perf_counter() - t0) * 1e3)
+    times.sort()
+    return {
+        "median_ms": round(statistics.median(times), 3),
+        "p90_ms": round(times[int(0.9 * (len(times) - 1))], 3),
+        "first_call_s": round(first, 2),
+    }
+
+
+def train_throughput(args, device: str) -> float:
+    torch.manual_seed(0)
+    cfg = make_config(args, device, fast=False)
+    policy = ActionflowPolicy(cfg).to(device).train()
+    opt = torch.optim.AdamW(policy.parameters(), lr=1e-4)
+    batch = make_batch(cfg, args.train_batch, device)
+    for step in range(args.train_warmup + args.train_steps):
+        if step == args.train_warmup:
+            _sync(device)
+            t0 = time.perf_counter()
+        loss, _ = policy.forward(batch)
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+    _sync(device)
+    return args.train_batch * args.train_steps / (time.perf_counter() - t0)
+
+
+def bench_device(args, device: str) -> dict:
+    result = {"latency_batch1": {}}
+    for fast in (False, True) if args.fast else (False,):
+        torch.manual_seed(0)
+        cfg = make_config(args, device, fast)
+        policy = ActionflowPolicy(cfg).to(device).eval()
+        batch = make_batch(cfg, 1, device)
+        mode = "fast" if fast else "eager"
+        for k in args.steps:
+            result["latency_batch1"][f"{mode}_K{k}"] = time_chunk(
+                policy, batch, k, device, args.warmup, args.repeats
+            )
+        result["parameters"] = sum(p.numel() for p in policy.parameters())
+    result["train_samples_per_s"] = round(train_throughput(args, device), 1)
+    if device == "cuda":
+        result["gpu"] = torch.cuda.get_device_name()
+    return result
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--device", choices=["auto", "cpu", "cuda"], default="auto")
+    ap.add_argument("--steps", type=int, nargs="+", default=[2, 4, 10], help="K values")
+    ap.add_argument("--entities", type=int, default=5)
+    ap.add_argument("--n-obs-steps", type=int, default=2)
+    ap.add_argument("--horizon", type=int, default=16)
+    ap.add_argument("--layers", type=int, default=4)
+    ap.add_argument("--image", action="store_true", help="add an 80x80 wrist camera (ResNet18)")
+    ap.add_argument("--repeats", type=int, default=100)
+    ap.add_argument("--warmup", type=int, default=10)
+    ap.add_argument("--threads", type=int, default=None, help="torch intra-op threads (CPU)")
+    ap.add_argument("--no-fast", dest="fast", action="store_false", help="skip the compiled sampler")
+    ap.add_argument("--train-batch", type=int, default=64)
+    ap.add_argument("--train-steps", type=int, default=10)
+    ap.add_argument("--train-warmup", type=int, default=3)
+    args = ap.parse_args()
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    devices = ["cpu", "cuda"] if args.device == "auto" else [args.device]
+    devices = [d for d in devices if d == "cpu" or torch.cuda.is_available()]
+    report = {
+        "date": time.strftime("%Y-%m-%d"),
+        "torch": torch.__version__,
+        "cpu": platform.processor() or platform.machine(),
+        "cpu_threads": torch.get_num_threads(),
+        "config": {k: getattr(args, k) for k in ("entities", "n_obs_steps", "horizon", "layers", "image")},
+        "results": {d: bench_device(args, d) for d in devices},
+    }
+    print(json.dumps(report, indent=2))
+
+
+if __name__ == "__main__":
+    main()
