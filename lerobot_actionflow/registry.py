@@ -12,6 +12,7 @@ import importlib
 #: Modules whose import registers a LeRobot config subclass (policy or env type).
 PLUGIN_MODULES: tuple[str, ...] = (
     "lerobot_actionflow.policies.actionflow.configuration_actionflow",
+    "lerobot_actionflow.policies.euclidean_flow.configuration_euclidean_flow",
 )
 
 

@@ -1,0 +1,207 @@
+"""Configuration of ``euclidean_flow``: Diffusion Policy with its diffusion process replaced by
+a rectified linear flow (ActionFlow paper, App. B and E).
+
+Observation inputs (any of them, at least one): ``observation.state`` ``(S_dim,)``,
+``observation.environment_state`` ``(E_dim,)``, ``observation.images.<camera>`` ``(3, H, W)``.
+Other observation keys (e.g. ``observation.poses``) are ignored. Output: ``action`` ``(A,)``,
+min-max normalised to ``[-1, 1]`` like Diffusion Policy.
+
+Inference knobs that need no retraining (they are read at every call, and can be overridden per
+call or with ``--policy.num_inference_steps=...`` on ``lerobot-eval``): ``num_inference_steps``
+(``K`` Euler steps = ``K`` network calls), ``time_spacing`` (``"uniform"`` or ``"exponential"``)
+and ``time_spacing_rate``.
+
+The UNet fields carry the same names and defaults as LeRobot's ``DiffusionConfig``, because the
+UNet backbone *is* LeRobot's ``DiffusionConditionalUnet1d``, built from this config; likewise the
+vision fields feed LeRobot's ``DiffusionRgbEncoder``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from lerobot.configs import NormalizationMode, PreTrainedConfig
+from lerobot.configs.types import FeatureType
+from lerobot.optim import AdamConfig, DiffuserSchedulerConfig
+from lerobot.utils.constants import ACTION
+
+BACKBONES = ("transformer", "unet")
+TIME_SPACINGS = ("uniform", "exponential")
+TRAIN_TIME_DISTRIBUTIONS = ("uniform", "beta")
+
+
+@PreTrainedConfig.register_subclass("euclidean_flow")
+@dataclass
+class EuclideanFlowConfig(PreTrainedConfig):
+    """Rectified-flow policy on flat action chunks.
+
+    Chunking (as Diffusion Policy): the network sees ``n_obs_steps`` observations and generates
+    ``horizon`` actions starting at the oldest observation; ``n_action_steps`` of them, from the
+    current step on, are executed (``n_action_steps <= horizon - n_obs_steps + 1``).
+
+    Flow: ``a_t = t a_1 + (1 - t) a_0``, ``a_0 ~ N(0, I)``, target ``u = a_1 - a_0``, loss
+    ``||v_theta(a_t, t, o) - u||^2``, ``t ~ U[0, 1]`` (or ``Beta``); sampling by ``K`` Euler
+    steps on a uniform or exponentially spaced grid. The network sees ``time_embed_scale * t``.
+    """
+
+    # Inputs / output structure.
+    n_obs_steps: int = 2
+    horizon: int = 16
+    n_action_steps: int = 8
+    normalization_mapping: dict[str, NormalizationMode] = field(
+        default_factory=lambda: {
+            "VISUAL": NormalizationMode.MEAN_STD,
+            "STATE": NormalizationMode.MIN_MAX,
+            "ENV": NormalizationMode.MIN_MAX,
+            "ACTION": NormalizationMode.MIN_MAX,
+        }
+    )
+    # Training samples whose chunk would run this far past the episode end are not drawn.
+    drop_n_last_frames: int = 7
+
+    # Backbone of the velocity field.
+    backbone: str = "transformer"
+    # Transformer (Diffusion Policy's transformer defaults).
+    n_layer: int = 8
+    n_head: int = 4
+    n_emb: int = 256
+    p_drop_emb: float = 0.0
+    p_drop_attn: float = 0.1
+    causal_attn: bool = True
+    # UNet: LeRobot's DiffusionConditionalUnet1d (same names and defaults as DiffusionConfig).
+    down_dims: tuple[int, ...] = (512, 1024, 2048)
+    kernel_size: int = 5
+    n_groups: int = 8
+    diffusion_step_embed_dim: int = 128
+    use_film_scale_modulation: bool = True
+    gradient_checkpointing: bool = False
+    # Flow time t in [0, 1] enters both backbones' sinusoidal embeddings as time_embed_scale * t.
+    time_embed_scale: float = 1000.0
+
+    # Vision (LeRobot's DiffusionRgbEncoder). No pretrained weights by default: everything runs
+    # offline; group norm is then Diffusion Policy's choice.
+    vision_backbone: str = "resnet18"
+    resize_shape: tuple[int, int] | None = None
+    crop_ratio: float = 1.0
+    crop_shape: tuple[int, int] | None = None
+    crop_is_random: bool = True
+    pretrained_backbone_weights: str | None = None
+    use_group_norm: bool = True
+    spatial_softmax_num_keypoints: int = 32
+    use_separate_rgb_encoder_per_camera: bool = True
+
+    # Flow matching.
+    train_time_distribution: str = "uniform"
+    train_time_beta: tuple[float, float] = (1.5, 1.0)
+    num_inference_steps: int = 10
+    time_spacing: str = "exponential"
+    time_spacing_rate: float = 2.0
+    # Clip the generated (normalised) chunk to [-1, 1], the range of min-max normalised actions.
+    clip_sample: bool = True
+    do_mask_loss_for_padding: bool = False
+
+    # Training presets (LeRobot's Diffusion Policy values).
+    optimizer_lr: float = 1e-4
+    optimizer_betas: tuple[float, float] = (0.95, 0.999)
+    optimizer_eps: float = 1e-8
+    optimizer_weight_decay: float = 1e-6
+    scheduler_name: str = "cosine"
+    scheduler_warmup_steps: int = 500
+
+    def __post_init__(self):
+        super().__post_init__()
+        if self.backbone not in BACKBONES:
+            raise ValueError(f"`backbone` must be one of {BACKBONES}, got {self.backbone!r}")
+        if self.time_spacing not in TIME_SPACINGS:
+            raise ValueError(f"`time_spacing` must be one of {TIME_SPACINGS}, got {self.time_spacing!r}")
+        if self.train_time_distribution not in TRAIN_TIME_DISTRIBUTIONS:
+            raise ValueError(
+                f"`train_time_distribution` must be one of {TRAIN_TIME_DISTRIBUTIONS}, "
+                f"got {self.train_time_distribution!r}"
+            )
+        if not isinstance(self.num_inference_steps, int) or self.num_inference_steps < 1:
+            raise ValueError(
+                f"`num_inference_steps` must be an integer >= 1, got {self.num_inference_steps!r}"
+            )
+        for name in ("n_obs_steps", "horizon", "n_action_steps"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"`{name}` must be >= 1, got {getattr(self, name)}")
+        if self.n_action_steps > self.horizon - self.n_obs_steps + 1:
+            raise ValueError(
+                "`n_action_steps` must be <= horizon - n_obs_steps + 1 (actions start at the oldest "
+                f"observation); got {self.n_action_steps=}, {self.horizon=}, {self.n_obs_steps=}"
+            )
+        if self.backbone == "unet":
+            factor = 2 ** (len(self.down_dims) - 1)
+            if self.horizon % factor:
+                raise ValueError(
+                    f"the UNet halves the horizon {len(self.down_dims) - 1} times: `horizon` must be a "
+                    f"multiple of {factor}, got {self.horizon} with down_dims={self.down_dims}"
+                )
+        if not self.vision_backbone.startswith("resnet"):
+            raise ValueError(f"`vision_backbone` must be a torchvision ResNet, got {self.vision_backbone!r}")
+        if not 0 < self.crop_ratio <= 1.0:
+            raise ValueError(f"`crop_ratio` must be in (0, 1], got {self.crop_ratio}")
+        if self.resize_shape is not None:
+            self.crop_shape = (
+                (int(self.resize_shape[0] * self.crop_ratio), int(self.resize_shape[1] * self.crop_ratio))
+                if self.crop_ratio < 1.0
+                else None
+            )
+
+    def get_optimizer_preset(self) -> AdamConfig:
+        return AdamConfig(
+            lr=self.optimizer_lr,
+            betas=self.optimizer_betas,
+            eps=self.optimizer_eps,
+            weight_decay=self.optimizer_weight_decay,
+        )
+
+    def get_scheduler_preset(self) -> DiffuserSchedulerConfig:
+        return DiffuserSchedulerConfig(name=self.scheduler_name, num_warmup_steps=self.scheduler_warmup_steps)
+
+    def validate_features(self) -> None:
+        action = self.action_feature
+        if action is None or len(action.shape) != 1:
+            raise ValueError(
+                f"euclidean_flow needs an output feature '{ACTION}' of shape (action_dim,), "
+                f"got {None if action is None else tuple(action.shape)}"
+            )
+        if self.robot_state_feature is None and self.env_state_feature is None and not self.image_features:
+            raise ValueError(
+                "euclidean_flow needs at least one observation input: 'observation.state' (state_dim,), "
+                "'observation.environment_state' (env_dim,) or 'observation.images.<camera>' (3, H, W); "
+                f"got input features {sorted(self.input_features or {})}"
+            )
+        for key, ft in self.used_input_features.items():
+            if ft.type is FeatureType.VISUAL:
+                if len(ft.shape) != 3:
+                    raise ValueError(
+                        f"image feature '{key}' must have shape (3, H, W), got {tuple(ft.shape)}"
+                    )
+            elif len(ft.shape) != 1:
+                raise ValueError(f"feature '{key}' must be a flat vector (dim,), got {tuple(ft.shape)}")
+        shapes = {tuple(ft.shape) for ft in self.image_features.values()}
+        if len(shapes) > 1:
+            raise ValueError(f"all camera images must have the same shape, got {sorted(shapes)}")
+
+    @property
+    def used_input_features(self) -> dict:
+        """The observation features the policy reads: state, environment state, images."""
+        used = {key: ft for key, ft in self.image_features.items()}
+        for key, ft in (self.input_features or {}).items():
+            if ft is self.robot_state_feature or ft is self.env_state_feature:
+                used[key] = ft
+        return used
+
+    @property
+    def observation_delta_indices(self) -> list:
+        return list(range(1 - self.n_obs_steps, 1))
+
+    @property
+    def action_delta_indices(self) -> list:
+        return list(range(1 - self.n_obs_steps, 1 - self.n_obs_steps + self.horizon))
+
+    @property
+    def reward_delta_indices(self) -> None:
+        return None

@@ -1,0 +1,252 @@
+"""``euclidean_flow``: Diffusion Policy with a rectified linear flow instead of diffusion.
+
+Training (App. B, Eq. 5-6), on min-max normalised chunks ``a_1 (B, H, A)``::
+
+    a_0 ~ N(0, I),  t ~ U[0, 1],  a_t = t a_1 + (1 - t) a_0,  u = a_1 - a_0,
+    loss = mean ||v_theta(a_t, t, o) - u||^2
+
+Sampling (Eq. 7): ``K`` Euler steps ``a_{k+1} = a_k + v_theta(a_k, t_k, o) (t_{k+1} - t_k)`` on a
+uniform or exponentially spaced grid (App. E), ``K`` network calls per chunk. ``K`` and the
+spacing are read from the config at every call (or passed per call), so they change without
+retraining.
+
+Observations ``o``: per step, ``[state, image features, environment state]`` concatenated into
+``cond (B, S, D)`` (``S = n_obs_steps``); images go through LeRobot's ``DiffusionRgbEncoder``.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+
+import torch
+from lerobot.policies.diffusion.modeling_diffusion import DiffusionRgbEncoder
+from lerobot.policies.pretrained import PreTrainedPolicy
+from lerobot.policies.utils import populate_queues
+from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_IMAGES, OBS_STATE
+from torch import Tensor, nn
+
+from lerobot_actionflow.flow.euclidean import euler_sample, linear_path
+from lerobot_actionflow.flow.schedules import make_time_grid, sample_train_times
+
+from .backbones import make_backbone
+from .configuration_euclidean_flow import EuclideanFlowConfig
+
+
+class ObservationEncoder(nn.Module):
+    """Observation steps -> conditioning features ``(B, S, D)``.
+
+    Input batch: ``observation.state (B, S, d_s)``, ``observation.images (B, S, N, 3, H, W)``
+    (cameras stacked), ``observation.environment_state (B, S, d_e)``, each only if configured.
+    ``D = d_s + N * F + d_e`` with ``F`` the RGB encoder's feature size.
+    """
+
+    def __init__(self, config: EuclideanFlowConfig):
+        super().__init__()
+        self.use_state = config.robot_state_feature is not None
+        self.use_env = config.env_state_feature is not None
+        self.num_cameras = len(config.image_features)
+        self.separate = config.use_separate_rgb_encoder_per_camera
+        dim = config.robot_state_feature.shape[0] if self.use_state else 0
+        dim += config.env_state_feature.shape[0] if self.use_env else 0
+        if self.num_cameras:
+            if self.separate:
+                self.rgb_encoder = nn.ModuleList(DiffusionRgbEncoder(config) for _ in range(self.num_cameras))
+                feat = self.rgb_encoder[0].feature_dim
+            else:
+                self.rgb_encoder = DiffusionRgbEncoder(config)
+                feat = self.rgb_encoder.feature_dim
+            dim += feat * self.num_cameras
+        self.feature_dim = dim
+
+    def forward(self, batch: dict[str, Tensor]) -> Tensor:
+        feats = []
+        if self.use_state:
+            feats.append(batch[OBS_STATE])
+        if self.num_cameras:
+            images = batch[OBS_IMAGES]  # (B, S, N, C, H, W)
+            b, s = images.shape[:2]
+            if self.separate:
+                per_cam = [enc(images[:, :, i].flatten(0, 1)) for i, enc in enumerate(self.rgb_encoder)]
+                feats.append(torch.cat(per_cam, dim=-1).reshape(b, s, -1))
+            else:
+                feats.append(self.rgb_encoder(images.flatten(0, 2)).reshape(b, s, -1))
+        if self.use_env:
+            feats.append(batch[OBS_ENV_STATE])
+        return torch.cat(feats, dim=-1)
+
+
+class EuclideanFlowPolicy(PreTrainedPolicy):
+    """Rectified-flow action-chunking policy (see module docstring)."""
+
+    config_class = EuclideanFlowConfig
+    name = "euclidean_flow"
+
+    def __init__(self, config: EuclideanFlowConfig, **kwargs):
+        # kwargs: LeRobot's factory passes dataset_stats / dataset_meta; normalisation lives in
+        # the processor pipeline, so they are not needed here.
+        super().__init__(config)
+        config.validate_features()
+        self.config = config
+        self.obs_encoder = ObservationEncoder(config)
+        self.velocity_net = make_backbone(config, self.obs_encoder.feature_dim)
+        self._queues: dict[str, deque] = {}
+        self.reset()
+
+    def get_optim_params(self):
+        return self.parameters()
+
+    def reset(self):
+        """Clear the observation and action queues (call on ``env.reset()``)."""
+        n = self.config.n_obs_steps
+        self._queues = {ACTION: deque(maxlen=self.config.n_action_steps)}
+        if self.config.robot_state_feature is not None:
+            self._queues[OBS_STATE] = deque(maxlen=n)
+        if self.config.env_state_feature is not None:
+            self._queues[OBS_ENV_STATE] = deque(maxlen=n)
+        if self.config.image_features:
+            self._queues[OBS_IMAGES] = deque(maxlen=n)
+
+    # ----------------------------------------------------------------------------- input checks
+    def _prepare(self, batch: dict[str, Tensor], with_time: bool) -> dict[str, Tensor]:
+        """Check every used observation feature and stack the cameras.
+
+        ``with_time``: tensors are ``(B, S, *shape)`` (training and offline chunks), else
+        ``(B, *shape)`` (one environment step). Raises ``ValueError`` naming a missing feature, a
+        wrong shape (with the expected one) or non-finite values.
+        """
+        out = dict(batch)
+        s = self.config.n_obs_steps
+        for key, ft in self.config.used_input_features.items():
+            shape = tuple(ft.shape)
+            expected = (
+                f"(B, {s}, {', '.join(map(str, shape))})"
+                if with_time
+                else f"(B, {', '.join(map(str, shape))})"
+            )
+            if key not in batch:
+                raise ValueError(f"missing input feature '{key}': expected a tensor of shape {expected}")
+            x = batch[key]
+            if not isinstance(x, Tensor):
+                raise ValueError(
+                    f"input feature '{key}' must be a torch.Tensor of shape {expected}, got {type(x)}"
+                )
+            if with_time and s == 1 and x.ndim == len(shape) + 1:
+                x = x.unsqueeze(1)  # a single observation step may come without its time axis
+            lead = 2 if with_time else 1
+            if (
+                x.ndim != len(shape) + lead
+                or tuple(x.shape[lead:]) != shape
+                or (with_time and x.shape[1] != s)
+            ):
+                raise ValueError(f"input feature '{key}' has shape {tuple(x.shape)}, expected {expected}")
+            if not torch.isfinite(x).all():
+                raise ValueError(f"input feature '{key}' contains non-finite values (nan or inf)")
+            out[key] = x
+        if self.config.image_features:
+            dim = 2 if with_time else 1
+            out[OBS_IMAGES] = torch.stack([out[k] for k in self.config.image_features], dim=dim)
+        return out
+
+    def _check_action(self, batch: dict[str, Tensor]) -> Tensor:
+        expected = (self.config.horizon, self.config.action_feature.shape[0])
+        if ACTION not in batch:
+            raise ValueError(
+                f"missing '{ACTION}' for training: expected shape (B, {expected[0]}, {expected[1]})"
+            )
+        a = batch[ACTION]
+        if a.ndim != 3 or tuple(a.shape[1:]) != expected:
+            raise ValueError(
+                f"'{ACTION}' has shape {tuple(a.shape)}, expected (B, {expected[0]}, {expected[1]})"
+            )
+        if not torch.isfinite(a).all():
+            raise ValueError(f"'{ACTION}' contains non-finite values (nan or inf)")
+        return a
+
+    # ---------------------------------------------------------------------------------- training
+    def forward(self, batch: dict[str, Tensor], reduction: str = "mean") -> tuple[Tensor, dict | None]:
+        """Flow-matching loss. Batch: observations ``(B, S, ...)``, ``action (B, H, A)``,
+        optional ``action_is_pad (B, H)``. ``reduction="none"`` gives the per-sample loss ``(B,)``."""
+        a1 = self._check_action(batch)
+        obs = self._prepare(batch, with_time=True)
+        cond = self.obs_encoder(obs)
+        a0 = torch.randn_like(a1)
+        t = sample_train_times(
+            a1.shape[0],
+            self.config.train_time_distribution,
+            beta=self.config.train_time_beta,
+            dtype=a1.dtype,
+            device=a1.device,
+        )
+        a_t, u = linear_path(a0, a1, t)
+        err = (self.velocity_net(a_t, t, cond) - u).pow(2)  # (B, H, A)
+        if self.config.do_mask_loss_for_padding and "action_is_pad" in batch:
+            valid = (~batch["action_is_pad"]).unsqueeze(-1).to(err.dtype)  # (B, H, 1)
+            per_sample = (err * valid).sum((1, 2)) / (valid.sum((1, 2)) * err.shape[-1]).clamp_min(1)
+        else:
+            per_sample = err.mean((1, 2))
+        if reduction == "none":
+            return per_sample, None
+        if reduction != "mean":
+            raise ValueError(f"reduction must be 'mean' or 'none', got {reduction!r}")
+        return per_sample.mean(), None
+
+    # --------------------------------------------------------------------------------- inference
+    @torch.no_grad()
+    def sample_chunk(
+        self,
+        obs: dict[str, Tensor],
+        noise: Tensor | None = None,
+        num_inference_steps: int | None = None,
+        time_spacing: str | None = None,
+    ) -> Tensor:
+        """Full normalised chunk ``(B, H, A)`` from prepared observations ``(B, S, ...)``:
+        ``K`` Euler steps from ``a_0 = noise`` (``N(0, I)`` if not given) on the time grid."""
+        cond = self.obs_encoder(obs)  # (B, S, D)
+        b = cond.shape[0]
+        shape = (b, self.config.horizon, self.config.action_feature.shape[0])
+        if noise is None:
+            noise = torch.randn(shape, dtype=cond.dtype, device=cond.device)
+        elif tuple(noise.shape) != shape:
+            raise ValueError(f"noise has shape {tuple(noise.shape)}, expected {shape}")
+        times = make_time_grid(
+            num_inference_steps or self.config.num_inference_steps,
+            time_spacing or self.config.time_spacing,
+            rate=self.config.time_spacing_rate,
+            dtype=cond.dtype,
+            device=cond.device,
+        )
+        chunk = euler_sample(lambda a, t: self.velocity_net(a, t, cond), noise.to(cond.dtype), times)
+        return chunk.clamp(-1.0, 1.0) if self.config.clip_sample else chunk
+
+    @torch.no_grad()
+    def predict_action_chunk(
+        self,
+        batch: dict[str, Tensor],
+        noise: Tensor | None = None,
+        num_inference_steps: int | None = None,
+        time_spacing: str | None = None,
+    ) -> Tensor:
+        """``n_action_steps`` actions ``(B, n_action_steps, A)`` from the current step on.
+
+        Online (queues filled by :meth:`select_action`): the queued observation history is used.
+        Offline (empty queues): ``batch`` holds observations ``(B, S, ...)``.
+        """
+        if any(len(q) for k, q in self._queues.items() if k != ACTION):
+            obs = {k: torch.stack(list(q), dim=1) for k, q in self._queues.items() if k != ACTION}
+        else:
+            obs = self._prepare(batch, with_time=True)
+        chunk = self.sample_chunk(obs, noise, num_inference_steps, time_spacing)
+        start = self.config.n_obs_steps - 1
+        return chunk[:, start : start + self.config.n_action_steps]
+
+    @torch.no_grad()
+    def select_action(self, batch: dict[str, Tensor], noise: Tensor | None = None) -> Tensor:
+        """One action ``(B, A)`` for observations ``(B, ...)`` of the current step; a new chunk is
+        generated every ``n_action_steps`` calls from the last ``n_obs_steps`` observations."""
+        batch = {k: v for k, v in batch.items() if k != ACTION}
+        obs = self._prepare(batch, with_time=False)
+        self._queues = populate_queues(self._queues, obs)
+        if not self._queues[ACTION]:
+            actions = self.predict_action_chunk(obs, noise=noise)
+            self._queues[ACTION].extend(actions.transpose(0, 1))
+        return self._queues[ACTION].popleft()

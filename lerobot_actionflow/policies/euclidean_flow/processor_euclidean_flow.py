@@ -1,0 +1,40 @@
+"""Pre/post-processors of ``euclidean_flow``: LeRobot's standard pipelines.
+
+Pre: rename -> add batch dim -> device -> normalise (state, environment state and actions
+min-max to ``[-1, 1]``, images mean/std). Post: unnormalise actions -> CPU.
+
+Only the features the policy reads are normalised: other observation keys (for example
+``observation.poses``, which is typed STATE by LeRobot) pass through untouched, explicitly
+rather than by luck of the stats.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import torch
+from lerobot.processor import PolicyAction, PolicyProcessorPipeline
+from lerobot.processor.factory import make_default_policy_processor_steps, make_policy_processor_pipelines
+from lerobot.processor.normalize_processor import NormalizerProcessorStep
+
+from .configuration_euclidean_flow import EuclideanFlowConfig
+
+
+def make_euclidean_flow_pre_post_processors(
+    config: EuclideanFlowConfig,
+    dataset_stats: dict[str, dict[str, torch.Tensor]] | None = None,
+) -> tuple[
+    PolicyProcessorPipeline[dict[str, Any], dict[str, Any]],
+    PolicyProcessorPipeline[PolicyAction, PolicyAction],
+]:
+    """``(preprocessor, postprocessor)`` for ``config``, normalising with ``dataset_stats``."""
+    s = make_default_policy_processor_steps(config, dataset_stats)
+    normalize = NormalizerProcessorStep(
+        features={**config.used_input_features, **config.output_features},
+        norm_map=config.normalization_mapping,
+        stats=dataset_stats,
+    )
+    return make_policy_processor_pipelines(
+        input_steps=[s.rename_observations, s.add_batch_dim, s.to_device, normalize],
+        output_steps=[s.unnormalize, s.to_cpu],
+    )

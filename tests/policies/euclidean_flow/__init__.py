@@ -1,0 +1,1 @@
+"""Tests of the euclidean_flow policy, its transformer, the IS sweep and the LeRobot CLIs."""
