@@ -22,6 +22,7 @@ import torch
 from lerobot.configs.types import FeatureType, PolicyFeature
 
 from lerobot_actionflow import geometry as g
+from lerobot_actionflow.flow import se3 as se3_flow
 from lerobot_actionflow.geometry.se3 import rp_to_pose7
 from lerobot_actionflow.policies.actionflow.configuration_actionflow import ActionflowConfig
 from lerobot_actionflow.policies.actionflow.modeling_actionflow import ActionflowPolicy
@@ -114,6 +115,7 @@ def train_throughput(args, device: str) -> float:
 
 def bench_device(args, device: str) -> dict:
     result = {"latency_batch1": {}}
+    chunks = {}
     for fast in (False, True) if args.fast else (False,):
         torch.manual_seed(0)
         cfg = make_config(args, device, fast)
@@ -124,7 +126,16 @@ def bench_device(args, device: str) -> dict:
             result["latency_batch1"][f"{mode}_K{k}"] = time_chunk(
                 policy, batch, k, device, args.warmup, args.repeats
             )
+        # Same weights (seed 0) and the same noise: the fast path must give the eager actions.
+        noise = se3_flow.draw_local_noise(
+            1, cfg.horizon, cfg.noise_sigma, generator=torch.Generator().manual_seed(1)
+        )
+        noise = se3_flow.LocalNoise(noise.r.to(device), noise.p.to(device), noise.g.to(device))
+        obs = {key: v for key, v in batch.items() if key != "action"}
+        chunks[mode] = policy.predict_action_chunk(obs, noise=noise).cpu()
         result["parameters"] = sum(p.numel() for p in policy.parameters())
+    if "fast" in chunks:
+        result["fast_vs_eager_max_abs_diff"] = float((chunks["fast"] - chunks["eager"]).abs().max())
     result["train_samples_per_s"] = round(train_throughput(args, device), 1)
     if device == "cuda":
         result["gpu"] = torch.cuda.get_device_name()

@@ -155,12 +155,18 @@ class ActionflowPolicy(PreTrainedPolicy):
         times = schedules.make_time_grid(
             k, cfg.time_spacing, cfg.time_spacing_rate, obs.p.dtype, obs.p.device
         )
-        sampler = self._sample
-        if cfg.compile_sampler:
+        if self._use_compiled_sampler(obs.p.device):
             if self._compiled_sampler is None:
                 self._compiled_sampler = torch.compile(self._sample, mode=cfg.compile_mode, dynamic=False)
-            sampler = self._compiled_sampler
-        return sampler(obs.r, obs.p, obs.scalars, obs.image_features, noise.r, noise.p, noise.g, times)
+            # CUDA-graph replays reuse their output buffers: copy before anyone keeps a view.
+            return self._compiled_sampler(
+                obs.r, obs.p, obs.scalars, obs.image_features, noise.r, noise.p, noise.g, times
+            ).clone()
+        return self._sample(obs.r, obs.p, obs.scalars, obs.image_features, noise.r, noise.p, noise.g, times)
+
+    def _use_compiled_sampler(self, device: torch.device) -> bool:
+        flag = self.config.compile_sampler
+        return device.type == "cuda" if flag is None else bool(flag)
 
     @torch.no_grad()
     def select_action(self, batch: dict[str, Tensor], noise: se3_flow.LocalNoise | None = None) -> Tensor:
