@@ -14,7 +14,7 @@ def test_register_third_party_plugins_imports_our_package():
         "assert 'lerobot_policy_actionflow' in sys.modules, 'plugin scan did not import us'\n"
         "import lerobot_policy_actionflow as p\n"
         "from lerobot.configs.policies import PreTrainedConfig\n"
-        "assert 'actionflow' in PreTrainedConfig.get_known_choices()\n"
+        "assert {'actionflow', 'euclidean_flow'} <= set(PreTrainedConfig.get_known_choices())\n"
         "print('registered:', ','.join(p.REGISTERED))\n"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
