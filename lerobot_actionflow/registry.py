@@ -13,6 +13,7 @@ import importlib
 PLUGIN_MODULES: tuple[str, ...] = (
     "lerobot_actionflow.policies.actionflow.configuration_actionflow",
     "lerobot_actionflow.policies.euclidean_flow.configuration_euclidean_flow",
+    "lerobot_actionflow.envs.configuration",
 )
 
 
