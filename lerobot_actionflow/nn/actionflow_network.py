@@ -12,15 +12,19 @@ Tokens (``L = H_o N + H_o N_cam + H``):
   feature ``E_step[k] + Linear(g_k)``.
 
 All poses pass through the adaptation module (reference: the EEF at the latest observation
-step), flow time conditions every block, and each action token reads out its local
-translation velocity ``v_p``, rotation velocity ``v_r`` and gripper velocity ``v_g``.
+step) and are centred on the mean observation position (a global translation: nothing changes
+mathematically, float32 stays exact). Observation tokens attend among themselves and do not
+see flow time, so they are encoded once per chunk and cached (``encode_observations``); the
+action tokens, conditioned on ``t``, attend to that cache and to each other at every step
+(``velocity``). Each action token reads out its local translation velocity ``v_p``, rotation
+velocity ``v_r`` and gripper velocity ``v_g``.
 Velocities are in the action token's own frame; ``v_p`` is returned in metres per unit time
 (the network's output divided by ``translation_scale``).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import torch
 from torch import nn
@@ -44,6 +48,22 @@ class ObservationTokens:
     p: torch.Tensor
     scalars: torch.Tensor | None = None
     image_features: torch.Tensor | None = None
+
+
+@dataclass
+class EncodedObservations:
+    """What :meth:`ActionFlowNetwork.encode_observations` computes once per chunk.
+
+    Attributes:
+        r_ref, p_ref: the reference (EEF) frame ``(B, 3, 3)``, ``(B, 3)``.
+        center: mean adapted observation position ``(B, 1, 3)``.
+        context: per-block cached keys/values of the observation tokens.
+    """
+
+    r_ref: torch.Tensor
+    p_ref: torch.Tensor
+    center: torch.Tensor
+    context: list[tuple[torch.Tensor, torch.Tensor]] = field(default_factory=list)
 
 
 class ActionFlowNetwork(nn.Module):
@@ -87,9 +107,8 @@ class ActionFlowNetwork(nn.Module):
         )
         self.head = nn.Sequential(nn.LayerNorm(dim), nn.Linear(dim, 7))
 
-    def encode_observations(self, obs: ObservationTokens) -> tuple[torch.Tensor, ...]:
-        """Observation tokens, computed once per chunk: features ``(B, L_o, C)``, frames
-        ``(B, L_o, 3, 3), (B, L_o, 3)`` (not yet adapted) and the reference frame."""
+    def encode_observations(self, obs: ObservationTokens) -> EncodedObservations:
+        """Observation tokens through the transformer, once per chunk."""
         b, h_o, n = obs.p.shape[:3]
         if (h_o, n) != (self.n_obs_steps, self.num_entities):
             raise ValueError(
@@ -108,17 +127,15 @@ class ActionFlowNetwork(nn.Module):
             r = torch.cat((r, r[:, :, idx]), 2)
             p = torch.cat((p, p[:, :, idx]), 2)
         l_o = f.shape[1] * f.shape[2]
-        return (
-            f.reshape(b, l_o, -1),
-            r.reshape(b, l_o, 3, 3),
-            p.reshape(b, l_o, 3),
-            obs.r[:, -1, 0],
-            obs.p[:, -1, 0],
-        )
+        r_ref, p_ref = obs.r[:, -1, 0], obs.p[:, -1, 0]
+        r_o, p_o = self.adaptation(r_ref, p_ref, r.reshape(b, l_o, 3, 3), p.reshape(b, l_o, 3))
+        center = p_o.mean(1, keepdim=True)
+        context = self.transformer.encode_context(f.reshape(b, l_o, -1), r_o, p_o - center)
+        return EncodedObservations(r_ref, p_ref, center, context)
 
     def velocity(
         self,
-        encoded: tuple[torch.Tensor, ...],
+        encoded: EncodedObservations,
         r: torch.Tensor,
         p: torch.Tensor,
         g: torch.Tensor,
@@ -133,12 +150,12 @@ class ActionFlowNetwork(nn.Module):
         Returns:
             ``v_p (B, H, 3)`` in metres, ``v_r (B, H, 3)``, ``v_g (B, H)``.
         """
-        f_o, r_o, p_o, r_ref, p_ref = encoded
-        f_a = self.step_embed[None] + self.gripper_proj(g[..., None])
-        f = torch.cat((f_o, f_a), 1)
-        r_all, p_all = self.adaptation(r_ref, p_ref, torch.cat((r_o, r), 1), torch.cat((p_o, p), 1))
-        out = self.transformer(f, r_all, p_all, self.time_embed(t))
-        v = self.head(out[:, f_o.shape[1] :])
+        f = self.step_embed[None] + self.gripper_proj(g[..., None])
+        r_a, p_a = self.adaptation(encoded.r_ref, encoded.p_ref, r, p)
+        out = self.transformer.forward_with_context(
+            f, r_a, p_a - encoded.center, self.time_embed(t), encoded.context
+        )
+        v = self.head(out)
         return v[..., :3] / self.adaptation.translation_scale, v[..., 3:6], v[..., 6]
 
     def forward(self, obs: ObservationTokens, r, p, g, t):

@@ -58,46 +58,69 @@ class InvariantPointAttention(nn.Module):
         self.w_c = math.sqrt(2.0 / (9 * num_query_points))
         self.to_out = nn.Linear(num_heads * (head_dim + num_value_points * 4), dim)
 
-    def forward(
-        self, f: torch.Tensor, r: torch.Tensor, p: torch.Tensor, mask: torch.Tensor | None = None
-    ) -> torch.Tensor:
-        """Args:
-            f: features ``(B, L, C)``; r: ``(B, L, 3, 3)``; p: ``(B, L, 3)``.
-            mask: optional boolean ``(B, L, L)`` or ``(L, L)``, True where token i may attend j.
-        Returns:
-            ``(B, L, C)`` invariant updates.
+    def project(
+        self, f: torch.Tensor, r: torch.Tensor, p: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Fused queries, keys and values of tokens ``f (B, L, C)`` with frames ``r, p``.
 
-        The point term is folded into one dot-product attention call:
+        The point term is folded into one dot product:
         ``-g |x_i - y_j|^2 = 2 g x_i.y_j - g |y_j|^2 - g |x_i|^2``, and the last term is constant
         over ``j``, so it cancels in the softmax. Queries ``[w_L q, 2 g q^p, 1]`` against keys
-        ``[k, k^p, -g |k^p|^2]`` give exactly the logits above, and values ``[v, T_j v^p]`` give
-        both outputs at once. Frames are first centred on their mean position (a global
-        translation, which changes nothing mathematically) to keep ``|y|^2`` small in float32.
+        ``[k, k^p, -g |k^p|^2]`` give exactly the logits of the module docstring, and values
+        ``[v, T_j v^p]`` give both outputs at once.
+
+        Returns:
+            query ``(B, H, L, c + 3 N_qp + 1)``, key (same), value ``(B, H, L, c + 3 N_pv)``.
         """
         b, n, _ = f.shape
         h, c, pq, pv = self.num_heads, self.head_dim, self.num_query_points, self.num_value_points
         scalars, points = self.to_inputs(f).split(self._split, -1)
         q, k, v = scalars.view(b, n, 3, h, c).unbind(2)  # (B, L, H, c)
-
-        p = p - p.mean(1, keepdim=True)
         pts = points.view(b, n, h * (2 * pq + pv), 3)
         pts = torch.einsum("blij,blmj->blmi", r, pts) + p[:, :, None, :]  # world frame
-        pts = pts.view(b, n, h, (2 * pq + pv) * 3)
-        q_pts, k_pts, v_pts = pts.split((pq * 3, pq * 3, pv * 3), -1)
-
+        q_pts, k_pts, v_pts = pts.view(b, n, h, (2 * pq + pv) * 3).split((pq * 3, pq * 3, pv * 3), -1)
         gamma = (F.softplus(self.point_weight) * (self.w_c / 2))[:, None]  # (H, 1)
-        ones = torch.ones_like(q[..., :1])
-        query = torch.cat((self.w_l * q, 2 * gamma * q_pts, ones), -1)
+        query = torch.cat((self.w_l * q, 2 * gamma * q_pts, torch.ones_like(q[..., :1])), -1)
         key = torch.cat((k, k_pts, -gamma * (k_pts * k_pts).sum(-1, keepdim=True)), -1)
         value = torch.cat((v, v_pts), -1)
+        return query.transpose(1, 2), key.transpose(1, 2), value.transpose(1, 2)
+
+    def attend(
+        self,
+        query: torch.Tensor,
+        key: torch.Tensor,
+        value: torch.Tensor,
+        r: torch.Tensor,
+        p: torch.Tensor,
+        mask: torch.Tensor | None = None,
+    ) -> torch.Tensor:
+        """Attention of the query tokens (frames ``r (B, L, 3, 3)``, ``p (B, L, 3)``) over any set
+        of keys/values from :meth:`project`; returns the ``(B, L, C)`` invariant update.
+
+        ``mask``: optional boolean ``(B, L, M)`` or ``(L, M)``, True where query i may attend key j.
+        """
+        b, _, n, _ = query.shape
+        h, c, pv = self.num_heads, self.head_dim, self.num_value_points
+        logits = query @ key.transpose(-1, -2)  # (B, H, L, M)
         if mask is not None:
-            mask = (mask if mask.ndim == 3 else mask[None])[:, None]
-        out = F.scaled_dot_product_attention(
-            query.transpose(1, 2), key.transpose(1, 2), value.transpose(1, 2), attn_mask=mask, scale=1.0
-        ).transpose(1, 2)  # (B, L, H, c + 3 N_pv)
+            logits = logits.masked_fill(~(mask if mask.ndim == 3 else mask[None])[:, None], float("-inf"))
+        # A plain softmax-matmul: at these sizes it beats scaled_dot_product_attention's CPU path.
+        out = (logits.softmax(-1) @ value).transpose(1, 2)  # (B, L, H, c + 3 N_pv)
         o, o_pts = out.split((c, pv * 3), -1)
         # Back into token i's frame: T_i^{-1} y = R_i^T (y - p_i).
         o_pts = o_pts.reshape(b, n, h * pv, 3) - p[:, :, None, :]
         o_pts = torch.einsum("blji,blmj->blmi", r, o_pts)
         o_norm = torch.sqrt((o_pts * o_pts).sum(-1) + 1e-8)
         return self.to_out(torch.cat((o.reshape(b, n, h * c), o_pts.reshape(b, n, h * pv * 3), o_norm), -1))
+
+    def forward(
+        self, f: torch.Tensor, r: torch.Tensor, p: torch.Tensor, mask: torch.Tensor | None = None
+    ) -> torch.Tensor:
+        """Self-attention among the tokens ``f (B, L, C)``, frames ``r (B, L, 3, 3)``,
+        ``p (B, L, 3)``; returns ``(B, L, C)`` invariant updates.
+
+        Positions enter through ``|k^p|^2``: callers keep them near the origin (the network
+        re-expresses poses in the EEF frame, or centres them) so that float32 stays exact.
+        """
+        query, key, value = self.project(f, r, p)
+        return self.attend(query, key, value, r, p, mask)

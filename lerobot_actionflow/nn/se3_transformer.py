@@ -8,6 +8,13 @@ Block (post-LayerNorm, as in AlphaFold2's structure module)::
 
 The frames ``T`` are inputs only (not updated), so every block, and the stack, is invariant
 to a global SE(3) transform of all frames.
+
+Context caching (what makes K sampling steps cheap): tokens that do not depend on flow time
+(the observations) are run once through :meth:`SE3InvariantTransformer.encode_context`, attending
+only among themselves; each block keeps their keys and values. The time-dependent tokens (the
+action chunk) then run through :meth:`SE3InvariantTransformer.forward_with_context` at every
+step, attending to the cached context and to each other. This is the full transformer with an
+attention mask (context cannot see the queries) and time conditioning on the queries only.
 """
 
 from __future__ import annotations
@@ -38,18 +45,46 @@ class IPABlock(nn.Module):
         self.norm2 = nn.LayerNorm(dim)
         self.drop = nn.Dropout(dropout)
 
+    def _update(self, f: torch.Tensor, attended: torch.Tensor) -> torch.Tensor:
+        f = self.norm1(f + self.drop(attended))
+        return self.norm2(f + self.drop(self.mlp(f)))
+
     def forward(
         self,
         f: torch.Tensor,
         r: torch.Tensor,
         p: torch.Tensor,
-        cond: torch.Tensor,
+        cond: torch.Tensor | None = None,
         mask: torch.Tensor | None = None,
     ) -> torch.Tensor:
-        """``f (B, L, C)``, ``r (B, L, 3, 3)``, ``p (B, L, 3)``, ``cond (B, C)`` -> ``(B, L, C)``."""
+        """Self-attention block: ``f (B, L, C)``, ``r (B, L, 3, 3)``, ``p (B, L, 3)``, optional
+        ``cond (B, C)`` added to every token -> ``(B, L, C)``."""
+        if cond is not None:
+            f = f + self.cond(cond)[:, None]
+        return self._update(f, self.ipa(f, r, p, mask))
+
+    def context(
+        self, f: torch.Tensor, r: torch.Tensor, p: torch.Tensor
+    ) -> tuple[torch.Tensor, tuple[torch.Tensor, torch.Tensor]]:
+        """Context tokens among themselves (no conditioning): updated features and the keys and
+        values (of the block's input) that queries will attend to."""
+        query, key, value = self.ipa.project(f, r, p)
+        return self._update(f, self.ipa.attend(query, key, value, r, p)), (key, value)
+
+    def forward_with_context(
+        self,
+        f: torch.Tensor,
+        r: torch.Tensor,
+        p: torch.Tensor,
+        cond: torch.Tensor,
+        context: tuple[torch.Tensor, torch.Tensor],
+    ) -> torch.Tensor:
+        """Query tokens ``f (B, L, C)`` attend to the cached ``context`` and to themselves."""
         f = f + self.cond(cond)[:, None]
-        f = self.norm1(f + self.drop(self.ipa(f, r, p, mask)))
-        return self.norm2(f + self.drop(self.mlp(f)))
+        query, key, value = self.ipa.project(f, r, p)
+        key = torch.cat((context[0], key), 2)
+        value = torch.cat((context[1], value), 2)
+        return self._update(f, self.ipa.attend(query, key, value, r, p))
 
 
 class SE3InvariantTransformer(nn.Module):
@@ -72,7 +107,31 @@ class SE3InvariantTransformer(nn.Module):
             for _ in range(depth)
         )
 
-    def forward(self, f, r, p, cond, mask=None):
+    def forward(self, f, r, p, cond=None, mask=None):
+        """All tokens attend to each other (``mask`` optional): ``(B, L, C) -> (B, L, C)``."""
         for block in self.blocks:
             f = block(f, r, p, cond, mask)
+        return f
+
+    def encode_context(
+        self, f: torch.Tensor, r: torch.Tensor, p: torch.Tensor
+    ) -> list[tuple[torch.Tensor, torch.Tensor]]:
+        """Per-block keys/values of time-independent context tokens ``(B, M, C)``."""
+        cache = []
+        for block in self.blocks:
+            f, kv = block.context(f, r, p)
+            cache.append(kv)
+        return cache
+
+    def forward_with_context(
+        self,
+        f: torch.Tensor,
+        r: torch.Tensor,
+        p: torch.Tensor,
+        cond: torch.Tensor,
+        context: list[tuple[torch.Tensor, torch.Tensor]],
+    ) -> torch.Tensor:
+        """Query tokens ``(B, L, C)`` through every block, attending to ``context``."""
+        for block, kv in zip(self.blocks, context, strict=True):
+            f = block.forward_with_context(f, r, p, cond, kv)
         return f

@@ -108,3 +108,37 @@ def test_transformer_is_invariant_and_sensitive_to_relative_poses():
     r_turned = r.clone()
     r_turned[:, 4] = r_turned[:, 4] @ g.exp(torch.tensor([0.0, 0.0, math.pi / 3], dtype=torch.float64))
     assert (net(f, r_turned, p, cond) - out).abs().max() > 1e-3
+
+
+def test_cached_context_equals_masked_full_attention():
+    """encode_context + forward_with_context is the full transformer in which context tokens
+    cannot see the queries and only the queries are time-conditioned."""
+    torch.manual_seed(0)
+    net = SE3InvariantTransformer(
+        dim=16, depth=3, num_heads=2, head_dim=4, num_query_points=2, num_value_points=2
+    )
+    net = net.double()
+    gen = torch.Generator().manual_seed(4)
+    m, n = 5, 4
+    f_ctx = torch.randn(2, m, 16, generator=gen, dtype=torch.float64)
+    f_q = torch.randn(2, n, 16, generator=gen, dtype=torch.float64)
+    cond = torch.randn(2, 16, generator=gen, dtype=torch.float64)
+    r, p = _frames(2, m + n, gen, torch.float64)
+
+    cached = net.forward_with_context(
+        f_q, r[:, m:], p[:, m:], cond, net.encode_context(f_ctx, r[:, :m], p[:, :m])
+    )
+
+    mask = torch.ones(m + n, m + n, dtype=torch.bool)
+    mask[:m, m:] = False
+    ctx, q = f_ctx, f_q
+    for block in net.blocks:
+        f = torch.cat((ctx, q + block.cond(cond)[:, None]), 1)
+        f = block._update(f, block.ipa(f, r, p, mask))
+        ctx, q = f[:, :m], f[:, m:]
+    assert torch.allclose(cached, q, atol=1e-10)
+    # The context really is used.
+    other = net.forward_with_context(
+        f_q, r[:, m:], p[:, m:], cond, net.encode_context(f_ctx + 1.0, r[:, :m], p[:, :m])
+    )
+    assert (other - cached).abs().max() > 1e-3

@@ -102,7 +102,7 @@ class ActionflowPolicy(PreTrainedPolicy):
             b, cfg.horizon, cfg.noise_sigma, cfg.noise_rotation, cfg.noise_kappa, dtype=action.dtype,
             device=action.device,
         )  # fmt: skip
-        r0, p0, g0 = se3_flow.noise_to_world(noise, encoded[3], encoded[4])
+        r0, p0, g0 = se3_flow.noise_to_world(noise, encoded.r_ref, encoded.p_ref)
         t = schedules.sample_train_times(
             b, cfg.train_time_distribution, cfg.train_time_beta, dtype=action.dtype, device=action.device
         )
@@ -186,7 +186,7 @@ class ActionflowPolicy(PreTrainedPolicy):
         obs = ObservationTokens(obs_r, obs_p, scalars, image_features)
         encoded = self.network.encode_observations(obs)
         r0, p0, g0 = se3_flow.noise_to_world(
-            se3_flow.LocalNoise(noise_r, noise_p, noise_g), encoded[3], encoded[4]
+            se3_flow.LocalNoise(noise_r, noise_p, noise_g), encoded.r_ref, encoded.p_ref
         )
         r, p, g = se3_flow.euler_sample(
             lambda r, p, g, t: self.network.velocity(encoded, r, p, g, t), r0, p0, g0, times
