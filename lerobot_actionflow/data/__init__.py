@@ -1,0 +1,6 @@
+"""Demonstration datasets in the project's schema (:mod:`lerobot_actionflow.schema`).
+
+- :mod:`.collect`: scripted-expert rollouts into a LeRobotDataset (``actionflow-collect``).
+- :mod:`.convert`: robomimic / mimicgen HDF5 files into a LeRobotDataset (``actionflow-convert``).
+- :mod:`.features`: the LeRobot feature spec and the observation -> frame mapping both share.
+"""

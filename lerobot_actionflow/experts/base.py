@@ -1,0 +1,160 @@
+"""Scripted experts: the protocol and a waypoint state machine that drives the absolute OSC arm.
+
+An expert is made for one env (:class:`PoseTokenEnv`, for geometry such as object sizes), then
+for every episode ``reset(rng)`` draws its random choices (grasp heading among an object's
+symmetric alternatives, waypoint offsets, speeds, pauses) and ``act(obs)`` returns the env's
+10-D action ``[x y z rot6d gripper]`` (absolute world EEF target, gripper -1 open / +1 closed).
+
+:class:`WaypointExpert` runs a list of :class:`Waypoint` s. Each waypoint is a target EEF pose,
+computed from the observation (usually an offset in an object's frame, so the plan follows
+where the objects really are), and a gripper command. The commanded pose moves from the
+previous command towards the target at a bounded speed, ``|dp| <= v dt`` and
+``|Log(R_cmd^T R_target)| <= w dt`` per step (geodesic step ``R <- R Exp(s Log(R^T R_t))``), so
+demonstrations are smooth and their speeds vary with ``v``, ``w``. A waypoint is reached when
+the command equals the target and the measured EEF is within ``tol`` of it; the expert then
+holds for ``hold`` steps (gripper timing and pauses) and goes on. A waypoint that takes more
+than ``timeout`` steps is left anyway (the controller cannot always reach a pose exactly, e.g.
+when pressing an object onto another); the task's success check decides whether the episode
+is kept.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from lerobot_actionflow.experts import frames as fr
+
+Pose = tuple[np.ndarray, np.ndarray]
+
+
+class Expert:
+    """Protocol of a scripted expert (see the module docstring)."""
+
+    #: Bumped whenever the behaviour changes; recorded in dataset metadata.
+    version: str = "0"
+    #: Task names this expert is registered for.
+    tasks: tuple[str, ...] = ()
+
+    def __init__(self, env):
+        self.env = env
+
+    def reset(self, rng: np.random.Generator) -> None:
+        raise NotImplementedError
+
+    def act(self, obs: dict[str, Any]) -> np.ndarray:
+        raise NotImplementedError
+
+    @property
+    def done(self) -> bool:
+        """Whether the plan is finished (the expert then holds its last command)."""
+        return False
+
+
+@dataclass
+class Waypoint:
+    """One phase of a plan.
+
+    Attributes:
+        name: for logs and tests.
+        target: ``(obs, mem) -> (p, R)`` world EEF target. ``mem`` is the expert's per-episode
+            scratch dict (e.g. a grasp transform recorded by an earlier phase).
+        gripper: gripper command during the phase (-1 open, +1 closed).
+        speed: max translation speed of the command (m/s).
+        rot_speed: max rotation speed of the command (rad/s).
+        tol: position tolerance (m) of the measured EEF for "reached".
+        hold: steps to stay after reaching (gripper closing time, pauses).
+        timeout: steps after which the phase is left even if not reached.
+        track: recompute the target every step (else once, at phase entry).
+        on_exit: ``(obs, mem) -> None`` called when the phase ends.
+    """
+
+    name: str
+    target: Callable[[dict, dict], Pose]
+    gripper: float = -1.0
+    speed: float = 0.25
+    rot_speed: float = 1.5
+    tol: float = 0.01
+    hold: int = 0
+    timeout: int = 200
+    track: bool = False
+    on_exit: Callable[[dict, dict], None] | None = None
+
+
+@dataclass
+class _State:
+    index: int = 0
+    steps: int = 0
+    held: int = 0
+    target: Pose | None = None
+    cmd: Pose | None = None
+    mem: dict = field(default_factory=dict)
+
+
+class WaypointExpert(Expert):
+    """Runs :meth:`plan` (a list of :class:`Waypoint`) with the bounded-speed command above."""
+
+    dt: float = 1.0 / 20.0
+
+    def plan(self, rng: np.random.Generator) -> list[Waypoint]:
+        """The waypoints of one episode; random choices are drawn here from ``rng``."""
+        raise NotImplementedError
+
+    def reset(self, rng: np.random.Generator) -> None:
+        self.rng = rng
+        self.waypoints = self.plan(rng)
+        self.state = _State()
+
+    @property
+    def done(self) -> bool:
+        return self.state.index >= len(self.waypoints)
+
+    @property
+    def phase(self) -> str:
+        return "done" if self.done else self.waypoints[self.state.index].name
+
+    @staticmethod
+    def eef(obs: dict) -> Pose:
+        return fr.pose_from_row(obs["poses"][0])
+
+    def act(self, obs: dict[str, Any]) -> np.ndarray:
+        s = self.state
+        if s.cmd is None:
+            s.cmd = self.eef(obs)
+            s.mem["gripper"] = -1.0
+        if self.done:
+            return fr.action_from_pose(*s.cmd, s.mem["gripper"])
+        wp = self.waypoints[s.index]
+        if s.target is None or wp.track:
+            s.target = wp.target(obs, s.mem)
+        s.cmd = self._step_towards(s.cmd, s.target, wp.speed, wp.rot_speed)
+        s.mem["gripper"] = wp.gripper
+        action = fr.action_from_pose(*s.cmd, wp.gripper)
+        p_eef, _ = self.eef(obs)
+        at_target = np.allclose(s.cmd[0], s.target[0], atol=1e-9) and np.allclose(
+            s.cmd[1], s.target[1], atol=1e-9
+        )
+        s.steps += 1
+        if at_target and np.linalg.norm(p_eef - s.target[0]) < wp.tol:
+            s.held += 1
+        if s.held > wp.hold or s.steps >= wp.timeout:
+            if wp.on_exit is not None:
+                wp.on_exit(obs, s.mem)
+            s.index, s.steps, s.held, s.target = s.index + 1, 0, 0, None
+        return action
+
+    def _step_towards(self, cmd: Pose, target: Pose, v: float, w: float) -> Pose:
+        p, r = cmd
+        pt, rt = target
+        d = pt - p
+        dist = float(np.linalg.norm(d))
+        step = v * self.dt
+        p_new = pt.copy() if dist <= step else p + d * (step / dist)
+        omega = fr.so3_log(r.T @ rt)
+        ang = float(np.linalg.norm(omega))
+        rstep = w * self.dt
+        r_new = rt.copy() if ang <= rstep else r @ fr.so3_exp(omega * (rstep / ang))
+        return p_new, r_new

@@ -1,0 +1,55 @@
+"""Scripted experts: success, varied (multimodal) demonstrations, the registry."""
+
+from __future__ import annotations
+
+import math
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import lerobot_actionflow.envs
+from lerobot_actionflow.experts import EXPERTS, expert_class, make_expert
+from lerobot_actionflow.experts import frames as fr
+from lerobot_actionflow.experts.rollout import run_episode
+
+
+@pytest.fixture(scope="module")
+def lift_env():
+    env = gym.make("lerobot_actionflow/Lift-v0", render_mode=None)
+    yield env
+    env.close()
+
+
+def test_lift_expert_succeeds_with_varied_grasps_and_speeds(lift_env):
+    expert = make_expert("Lift", lift_env)
+    sides, lengths = set(), set()
+    for seed in range(8):
+        ep = run_episode(lift_env, expert, seed)
+        assert ep.success, f"seed {seed} failed in phase {expert.phase}"
+        actions = np.stack(ep.actions)
+        assert actions.shape == (len(ep), 10) and actions.dtype == np.float32
+        np.testing.assert_allclose(np.linalg.norm(actions[:, 3:6], axis=1), 1.0, atol=1e-5)
+        # Which of the cube's four faces the fingers closed on: grasp heading relative to the cube.
+        _, r_cube = fr.pose_from_row(ep.observations[0]["poses"][1])
+        psi = fr.yaw_of(expert.state.mem["cube_pose"][1]) - math.pi / 2
+        sides.add(round(fr.wrap(psi - fr.yaw_of(r_cube)) / (math.pi / 2)) % 4)
+        lengths.add(len(ep))
+    assert len(sides) >= 2, sides  # symmetric alternatives are used
+    assert len(lengths) >= 4, lengths  # speeds and pauses vary
+
+
+def test_same_seed_same_demonstration(lift_env):
+    expert = make_expert("Lift", lift_env)
+    a = np.stack(run_episode(lift_env, expert, 3).actions)
+    b = np.stack(run_episode(lift_env, expert, 3).actions)
+    np.testing.assert_array_equal(a, b)
+
+
+def test_registry():
+    assert {"Lift", "StackThree_D0", "Square"} <= set(EXPERTS)
+    for cls in set(EXPERTS.values()):
+        assert cls.version and set(cls.tasks) <= set(lerobot_actionflow.envs.TASKS)
+    assert expert_class("lerobot_actionflow/Lift-v0") is EXPERTS["Lift"]
+    with pytest.raises(KeyError, match="no scripted expert"):
+        expert_class("Lift_D9")
