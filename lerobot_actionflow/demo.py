@@ -53,7 +53,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--task", default="Lift")
     ap.add_argument("--episodes", type=int, default=30, help="demonstrations to collect")
-    ap.add_argument("--steps", type=int, default=3000, help="training steps")
+    ap.add_argument("--steps", type=int, default=600, help="training steps")
     ap.add_argument("--batch-size", type=int, default=32)
     ap.add_argument("--eval-episodes", type=int, default=10)
     ap.add_argument("--eval-batch-size", type=int, default=2)
