@@ -133,27 +133,37 @@ class ActionFlowNetwork(nn.Module):
         context = self.transformer.encode_context(f.reshape(b, l_o, -1), r_o, p_o - center)
         return EncodedObservations(r_ref, p_ref, center, context)
 
+    def time_shifts(self, t: torch.Tensor) -> list[torch.Tensor]:
+        """Per-block time conditioning for flow times ``t (N,)``: ``depth x (N, C)``."""
+        return self.transformer.time_shifts(self.time_embed(t))
+
     def velocity(
         self,
         encoded: EncodedObservations,
         r: torch.Tensor,
         p: torch.Tensor,
         g: torch.Tensor,
-        t: torch.Tensor,
+        t: torch.Tensor | None = None,
+        shifts: list[torch.Tensor] | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Local velocities of the action tokens.
 
         Args:
             encoded: output of :meth:`encode_observations`.
             r, p, g: current action chunk ``(B, H, 3, 3), (B, H, 3), (B, H)``.
-            t: flow time ``(B,)``.
+            t: flow time ``(B,)``, or instead
+            shifts: its conditioning from :meth:`time_shifts` (``depth x (B or 1, C)``).
         Returns:
             ``v_p (B, H, 3)`` in metres, ``v_r (B, H, 3)``, ``v_g (B, H)``.
         """
+        if shifts is None:
+            if t is None:
+                raise ValueError("velocity needs the flow time t or its time shifts")
+            shifts = self.time_shifts(t)
         f = self.step_embed[None] + self.gripper_proj(g[..., None])
         r_a, p_a = self.adaptation(encoded.r_ref, encoded.p_ref, r, p)
         out = self.transformer.forward_with_context(
-            f, r_a, p_a - encoded.center, self.time_embed(t), encoded.context
+            f, r_a, p_a - encoded.center, None, encoded.context, shifts=shifts
         )
         v = self.head(out)
         return v[..., :3] / self.adaptation.translation_scale, v[..., 3:6], v[..., 6]

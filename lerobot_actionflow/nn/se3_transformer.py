@@ -76,11 +76,12 @@ class IPABlock(nn.Module):
         f: torch.Tensor,
         r: torch.Tensor,
         p: torch.Tensor,
-        cond: torch.Tensor,
+        shift: torch.Tensor,
         context: tuple[torch.Tensor, torch.Tensor],
     ) -> torch.Tensor:
-        """Query tokens ``f (B, L, C)`` attend to the cached ``context`` and to themselves."""
-        f = f + self.cond(cond)[:, None]
+        """Query tokens ``f (B, L, C)`` attend to the cached ``context`` and to themselves;
+        ``shift = self.cond(c)`` ``(B or 1, C)`` is the block's time conditioning."""
+        f = f + shift[:, None]
         query, key, value = self.ipa.project(f, r, p)
         key = torch.cat((context[0], key), 2)
         value = torch.cat((context[1], value), 2)
@@ -123,15 +124,27 @@ class SE3InvariantTransformer(nn.Module):
             cache.append(kv)
         return cache
 
+    def time_shifts(self, cond: torch.Tensor) -> list[torch.Tensor]:
+        """Each block's conditioning ``Linear_l(c)`` for conditions ``c (N, C)``: ``depth x (N, C)``.
+
+        The sampler knows every flow time of a chunk in advance, so it computes the shifts of all
+        K steps at once (one matmul per block per chunk, not per step).
+        """
+        return [block.cond(cond) for block in self.blocks]
+
     def forward_with_context(
         self,
         f: torch.Tensor,
         r: torch.Tensor,
         p: torch.Tensor,
-        cond: torch.Tensor,
+        cond: torch.Tensor | None,
         context: list[tuple[torch.Tensor, torch.Tensor]],
+        shifts: list[torch.Tensor] | None = None,
     ) -> torch.Tensor:
-        """Query tokens ``(B, L, C)`` through every block, attending to ``context``."""
-        for block, kv in zip(self.blocks, context, strict=True):
-            f = block.forward_with_context(f, r, p, cond, kv)
+        """Query tokens ``(B, L, C)`` through every block, attending to ``context``; the time
+        conditioning is ``cond (B, C)`` or its precomputed ``shifts`` (:meth:`time_shifts`)."""
+        if shifts is None:
+            shifts = self.time_shifts(cond)
+        for block, kv, shift in zip(self.blocks, context, shifts, strict=True):
+            f = block.forward_with_context(f, r, p, shift, kv)
         return f

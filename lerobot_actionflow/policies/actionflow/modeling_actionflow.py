@@ -188,9 +188,13 @@ class ActionflowPolicy(PreTrainedPolicy):
         r0, p0, g0 = se3_flow.noise_to_world(
             se3_flow.LocalNoise(noise_r, noise_p, noise_g), encoded.r_ref, encoded.p_ref
         )
-        r, p, g = se3_flow.euler_sample(
-            lambda r, p, g, t: self.network.velocity(encoded, r, p, g, t), r0, p0, g0, times
-        )
+        # Every flow time of the chunk is known: condition all K steps with one call per block.
+        shifts = self.network.time_shifts(times[:-1])  # depth x (K, C)
+        dts = times[1:] - times[:-1]
+        r, p, g = r0, p0, g0
+        for k in range(times.shape[0] - 1):
+            v_p, v_r, v_g = self.network.velocity(encoded, r, p, g, shifts=[s[k : k + 1] for s in shifts])
+            r, p, g = se3_flow.euler_step(r, p, g, v_p, v_r, v_g, dts[k])
         return pose_to_action(r, p, g.clamp(-1.0, 1.0))
 
     def _observation_tokens(self, batch: dict[str, Tensor]) -> ObservationTokens:
