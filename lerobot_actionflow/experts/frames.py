@@ -16,7 +16,8 @@ from lerobot_actionflow.envs import rotations as rot
 
 #: Top-down grasp orientation at yaw 0: EEF x along world +y, EEF y along world +x, EEF z
 #: (the approach axis) pointing down. This is the Panda's home orientation in robosuite; the
-#: fingers close along the EEF y axis.
+#: fingers close along the EEF x axis (measured: in the grip-site frame the finger pads sit at
+#: x = +-0.02..0.028 m and the hand spans x +-0.10 m, y +-0.032 m, 0.031-0.123 m behind the site).
 R_DOWN = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
 
 

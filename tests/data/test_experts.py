@@ -53,3 +53,15 @@ def test_registry():
     assert expert_class("lerobot_actionflow/Lift-v0") is EXPERTS["Lift"]
     with pytest.raises(KeyError, match="no scripted expert"):
         expert_class("Lift_D9")
+
+
+def test_coffee_d2_expert_succeeds_with_machine_turned_away():
+    # Seed 1 of Coffee_D2: machine yaw about 122 deg, the open lid facing the pod's side (the
+    # carry path and the hand's heading over the holder both used to knock the lid).
+    env = gym.make("lerobot_actionflow/Coffee_D2-v0", render_mode=None)
+    try:
+        expert = make_expert("Coffee_D2", env)
+        ep = run_episode(env, expert, 1, record=False)
+        assert ep.success, f"failed in phase {expert.phase}"
+    finally:
+        env.close()
