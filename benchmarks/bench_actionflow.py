@@ -4,7 +4,8 @@ Prints one JSON object. Default model: 4 IPA layers, history 2, horizon 16, 5 en
 4 objects), state scalars, no images (``--image`` adds an 80x80 wrist camera). Latency is
 measured for K in {2, 4, 10} eagerly and with the fast-inference option
 (``compile_sampler``: ``torch.compile`` of the whole K-step sampler; on CUDA its
-"reduce-overhead" mode replays CUDA graphs).
+"reduce-overhead" mode replays CUDA graphs, on the CPU the weights are frozen into the graph),
+timed round-robin so that both see the same load (this matters on shared machines).
 
     python benchmarks/bench_actionflow.py                 # CPU, and CUDA when present
     python benchmarks/bench_actionflow.py --device cpu --no-fast --repeats 50
@@ -43,8 +44,8 @@ def make_config(args, device: str, fast: bool) -> ActionflowConfig:
         input_features=inputs,
         output_features={"action": PolicyFeature(FeatureType.ACTION, (10,))},
         device=device,
-        compile_sampler=fast,
-        compile_mode="reduce-overhead" if device == "cuda" else "default",
+        compile_sampler=fast,  # CPU: frozen weights + C++ wrapper; CUDA: CUDA graphs
+        compile_mode="reduce-overhead",
     )
 
 
@@ -72,27 +73,35 @@ def _sync(device: str) -> None:
         torch.cuda.synchronize()
 
 
-def time_chunk(policy, batch, k: int, device: str, warmup: int, repeats: int) -> dict:
+def time_chunks(policies: dict, batch, k: int, device: str, warmup: int, repeats: int) -> dict:
+    """Median / p90 latency of ``predict_action_chunk`` for each policy, timed round-robin (one
+    call of each in turn) so that they all see the same machine load."""
     obs = {key: v for key, v in batch.items() if key != "action"}
-    t0 = time.perf_counter()
-    policy.predict_action_chunk(obs, num_inference_steps=k)
-    _sync(device)
-    first = time.perf_counter() - t0
-    for _ in range(warmup):
-        policy.predict_action_chunk(obs, num_inference_steps=k)
-    _sync(device)
-    times = []
-    for _ in range(repeats):
+    first = {}
+    for mode, policy in policies.items():
         t0 = time.perf_counter()
         policy.predict_action_chunk(obs, num_inference_steps=k)
         _sync(device)
-        times.append((time.perf_counter() - t0) * 1e3)
-    times.sort()
-    return {
-        "median_ms": round(statistics.median(times), 3),
-        "p90_ms": round(times[int(0.9 * (len(times) - 1))], 3),
-        "first_call_s": round(first, 2),
-    }
+        first[mode] = time.perf_counter() - t0
+        for _ in range(warmup):
+            policy.predict_action_chunk(obs, num_inference_steps=k)
+    _sync(device)
+    times = {mode: [] for mode in policies}
+    for _ in range(repeats):
+        for mode, policy in policies.items():
+            t0 = time.perf_counter()
+            policy.predict_action_chunk(obs, num_inference_steps=k)
+            _sync(device)
+            times[mode].append((time.perf_counter() - t0) * 1e3)
+    out = {}
+    for mode, ts in times.items():
+        ts.sort()
+        out[mode] = {
+            "median_ms": round(statistics.median(ts), 3),
+            "p90_ms": round(ts[int(0.9 * (len(ts) - 1))], 3),
+            "first_call_s": round(first[mode], 2),
+        }
+    return out
 
 
 def train_throughput(args, device: str) -> float:
@@ -115,28 +124,28 @@ def train_throughput(args, device: str) -> float:
 
 def bench_device(args, device: str) -> dict:
     result = {"latency_batch1": {}}
-    chunks = {}
+    policies = {}
     for fast in (False, True) if args.fast else (False,):
-        torch.manual_seed(0)
+        torch.manual_seed(0)  # same weights for both
         cfg = make_config(args, device, fast)
-        policy = ActionflowPolicy(cfg).to(device).eval()
-        batch = make_batch(cfg, 1, device)
-        mode = "fast" if fast else "eager"
-        for k in args.steps:
-            result["latency_batch1"][f"{mode}_K{k}"] = time_chunk(
-                policy, batch, k, device, args.warmup, args.repeats
-            )
-        # Same weights (seed 0) and the same noise: the fast path must give the eager actions.
-        noise = se3_flow.draw_local_noise(
-            1, cfg.horizon, cfg.noise_sigma, generator=torch.Generator().manual_seed(1)
-        )
-        noise = se3_flow.LocalNoise(noise.r.to(device), noise.p.to(device), noise.g.to(device))
-        obs = {key: v for key, v in batch.items() if key != "action"}
-        chunks[mode] = policy.predict_action_chunk(obs, noise=noise).cpu()
-        result["parameters"] = sum(p.numel() for p in policy.parameters())
+        policies["fast" if fast else "eager"] = ActionflowPolicy(cfg).to(device).eval()
+    batch = make_batch(policies["eager"].config, 1, device)
+    for k in args.steps:
+        for mode, timing in time_chunks(policies, batch, k, device, args.warmup, args.repeats).items():
+            result["latency_batch1"][f"{mode}_K{k}"] = timing
+    # Same weights and the same noise: the fast path must give the eager actions.
+    cfg = policies["eager"].config
+    noise = se3_flow.draw_local_noise(
+        1, cfg.horizon, cfg.noise_sigma, generator=torch.Generator().manual_seed(1)
+    )
+    noise = se3_flow.LocalNoise(noise.r.to(device), noise.p.to(device), noise.g.to(device))
+    obs = {key: v for key, v in batch.items() if key != "action"}
+    chunks = {mode: p.predict_action_chunk(obs, noise=noise).cpu() for mode, p in policies.items()}
+    result["parameters"] = sum(p.numel() for p in policies["eager"].parameters())
     if "fast" in chunks:
         result["fast_vs_eager_max_abs_diff"] = float((chunks["fast"] - chunks["eager"]).abs().max())
-    result["train_samples_per_s"] = round(train_throughput(args, device), 1)
+    if args.train_steps:
+        result["train_samples_per_s"] = round(train_throughput(args, device), 1)
     if device == "cuda":
         result["gpu"] = torch.cuda.get_device_name()
     return result

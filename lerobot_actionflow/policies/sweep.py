@@ -4,8 +4,8 @@ For each checkpoint and each IS, the policy is rolled out in a LeRobot env with 
 evaluation machinery (``make_env``, ``make_policy``, ``make_pre_post_processors``,
 ``eval_policy`` from ``lerobot_eval``); only the number of network calls per chunk changes:
 
-- ``euclidean_flow``: ``K = IS`` Euler steps (grid spacing from the checkpoint, or
-  ``--time_spacing``);
+- ``actionflow`` and ``euclidean_flow``: ``K = IS`` Euler steps (on SE(3) x R for actionflow, in
+  R^n for euclidean_flow; grid spacing from the checkpoint, or ``--time_spacing``);
 - ``diffusion`` (LeRobot's Diffusion Policy): DDIM with IS steps for ``IS < num_train_timesteps``,
   DDPM when ``IS == num_train_timesteps`` (the paper's protocol; 100 by default).
 
@@ -42,10 +42,11 @@ class SweepConfig:
     """Command-line configuration of the sweep (parsed with draccus, like LeRobot's CLIs)."""
 
     env: EnvConfig
-    # Checkpoint directories (…/checkpoints/<step>/pretrained_model) of euclidean_flow or diffusion.
+    # Checkpoint directories (…/checkpoints/<step>/pretrained_model) of actionflow, euclidean_flow
+    # or diffusion.
     checkpoints: list[str] = field(default_factory=list)
     inference_steps: list[int] = field(default_factory=lambda: [2, 5, 10, 20, 100])
-    # euclidean_flow only: "uniform" or "exponential"; None keeps each checkpoint's setting.
+    # actionflow / euclidean_flow only: "uniform" or "exponential"; None keeps each checkpoint's setting.
     time_spacing: str | None = None
     eval: EvalConfig = field(default_factory=lambda: EvalConfig(n_episodes=50, batch_size=10))
     seed: int = 1000
@@ -57,14 +58,14 @@ class SweepConfig:
 def set_inference_steps(policy, num_steps: int, time_spacing: str | None = None) -> str:
     """Make ``policy`` spend ``num_steps`` network calls per chunk; returns the sampler's name.
 
-    ``euclidean_flow``: ``num_steps`` Euler steps. ``diffusion``: DDIM with ``num_steps`` steps,
-    or DDPM when ``num_steps`` equals the trained ``num_train_timesteps`` (built from the
+    ``actionflow`` / ``euclidean_flow``: ``num_steps`` Euler steps. ``diffusion``: DDIM with
+    ``num_steps`` steps, or DDPM when ``num_steps`` equals the trained ``num_train_timesteps`` (built from the
     trained noise schedule with ``from_config``, so betas and clipping are unchanged).
     """
     if not isinstance(num_steps, int) or num_steps < 1:
         raise ValueError(f"the number of inference steps must be an integer >= 1, got {num_steps!r}")
     kind = policy.config.type
-    if kind == "euclidean_flow":
+    if kind in ("euclidean_flow", "actionflow"):
         policy.config.num_inference_steps = num_steps
         if time_spacing is not None:
             policy.config.time_spacing = time_spacing
@@ -73,7 +74,7 @@ def set_inference_steps(policy, num_steps: int, time_spacing: str | None = None)
         from diffusers import DDIMScheduler, DDPMScheduler
 
         if time_spacing is not None:
-            raise ValueError("time_spacing applies to euclidean_flow only, not to diffusion")
+            raise ValueError("time_spacing applies to the flow policies only, not to diffusion")
         model = policy.diffusion
         trained = model.noise_scheduler.config.num_train_timesteps
         if num_steps > trained:
@@ -83,7 +84,9 @@ def set_inference_steps(policy, num_steps: int, time_spacing: str | None = None)
             model.noise_scheduler = cls.from_config(model.noise_scheduler.config)
         model.num_inference_steps = num_steps
         return "ddpm" if cls is DDPMScheduler else "ddim"
-    raise ValueError(f"inference-step sweep supports 'euclidean_flow' and 'diffusion', got '{kind}'")
+    raise ValueError(
+        f"inference-step sweep supports 'actionflow', 'euclidean_flow' and 'diffusion', got '{kind}'"
+    )
 
 
 def _evaluate_checkpoint(cfg: SweepConfig, checkpoint: str) -> list[dict]:

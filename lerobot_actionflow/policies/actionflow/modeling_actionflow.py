@@ -157,12 +157,40 @@ class ActionflowPolicy(PreTrainedPolicy):
         )
         if self._use_compiled_sampler(obs.p.device):
             if self._compiled_sampler is None:
-                self._compiled_sampler = torch.compile(self._sample, mode=cfg.compile_mode, dynamic=False)
+                self._compiled_sampler = self._compile_sampler(obs.p.device)
             # CUDA-graph replays reuse their output buffers: copy before anyone keeps a view.
             return self._compiled_sampler(
                 obs.r, obs.p, obs.scalars, obs.image_features, noise.r, noise.p, noise.g, times
             ).clone()
         return self._sample(obs.r, obs.p, obs.scalars, obs.image_features, noise.r, noise.p, noise.g, times)
+
+    def _compile_sampler(self, device: torch.device):
+        """``torch.compile`` of :meth:`_sample`, one graph per K.
+
+        On CUDA with ``compile_mode`` ("reduce-overhead": CUDA graphs). On the CPU, where a
+        batch-1 chunk is bound by operator overhead and by streaming the weights, with inductor's
+        ``freezing`` (weights folded in as constants and pre-packed for oneDNN's matmuls) and its
+        C++ wrapper (kernels called from C++, not Python). Frozen weights are a snapshot: the
+        compiled sampler is dropped whenever the weights may change (:meth:`train`,
+        :meth:`load_state_dict`); code that edits parameters in place must call
+        :meth:`reset_compiled_sampler`.
+        """
+        if device.type == "cpu":
+            return torch.compile(self._sample, dynamic=False, options={"freezing": True, "cpp_wrapper": True})
+        return torch.compile(self._sample, mode=self.config.compile_mode, dynamic=False)
+
+    def reset_compiled_sampler(self) -> None:
+        """Forget the compiled sampler; the next chunk compiles it again with the current weights."""
+        self._compiled_sampler = None
+
+    def train(self, mode: bool = True):
+        if mode:
+            self.reset_compiled_sampler()
+        return super().train(mode)
+
+    def load_state_dict(self, state_dict, strict: bool = True, assign: bool = False):
+        self.reset_compiled_sampler()
+        return super().load_state_dict(state_dict, strict=strict, assign=assign)
 
     def _use_compiled_sampler(self, device: torch.device) -> bool:
         flag = self.config.compile_sampler

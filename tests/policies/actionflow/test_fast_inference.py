@@ -30,6 +30,16 @@ def test_compiled_sampler_matches_eager():
     assert torch.allclose(
         a_fast, eager.predict_action_chunk(batch, noise=noise, num_inference_steps=2), atol=1e-4
     )
+    # New weights reach the compiled sampler (on the CPU it folds them in as constants).
+    with torch.no_grad():
+        for p in eager.parameters():
+            p.add_(0.05 * torch.randn_like(p))
+    fast.load_state_dict(eager.state_dict())
+    a_new = eager.predict_action_chunk(batch, noise=noise, num_inference_steps=2)
+    assert not torch.allclose(a_new, a_eager, atol=1e-3)
+    assert torch.allclose(
+        a_new, fast.predict_action_chunk(batch, noise=noise, num_inference_steps=2), atol=1e-4
+    )
 
 
 def test_compile_is_automatic_on_cuda_only():
@@ -37,3 +47,28 @@ def test_compile_is_automatic_on_cuda_only():
     assert policy.config.compile_sampler is None
     assert policy._use_compiled_sampler(torch.device("cuda"))
     assert not policy._use_compiled_sampler(torch.device("cpu"))
+
+
+def test_compiled_sampler_is_dropped_when_weights_may_change():
+    # The CPU sampler is compiled with frozen weights: training or loading weights must recompile.
+    policy = ActionflowPolicy(small_config(compile_sampler=True)).eval()
+    policy._compiled_sampler = object()
+    policy.eval()
+    assert policy._compiled_sampler is not None
+    policy.train()
+    assert policy._compiled_sampler is None
+    policy.eval()._compiled_sampler = object()
+    policy.load_state_dict(policy.state_dict())
+    assert policy._compiled_sampler is None
+
+
+def test_inference_step_sweep_sets_actionflow_euler_steps():
+    from lerobot_actionflow.policies.sweep import set_inference_steps
+
+    policy = ActionflowPolicy(small_config()).eval()
+    calls = []
+    original = policy.network.velocity
+    policy.network.velocity = lambda *a, **k: calls.append(1) or original(*a, **k)
+    assert set_inference_steps(policy, 3, "exponential") == "euler-exponential"
+    policy.predict_action_chunk(random_batch(policy.config, 1, torch.Generator().manual_seed(0)))
+    assert len(calls) == 3
