@@ -1,75 +1,20 @@
-"""Shared helpers for the ``euclidean_flow`` tests: a tiny LeRobotDataset with the project's
-schema, written through LeRobot's own recording API."""
+"""Shared helpers for the ``euclidean_flow`` tests: a tiny LeRobotDataset in the project's schema
+(:mod:`tests.synthetic_dataset`) and a policy trained on a two-mode task."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
 import pytest
 
-STATE_DIM, ACTION_DIM, NUM_OBJECTS, NUM_POSES = 11, 10, 1, 2
-ENV_DIM = 9 * NUM_OBJECTS
-
-
-def dataset_features(with_images: bool = False) -> dict:
-    """The project's dataset schema (``observation.poses`` is present and must be ignored)."""
-    feats = {
-        "observation.state": {"dtype": "float32", "shape": (STATE_DIM,), "names": None},
-        "observation.environment_state": {"dtype": "float32", "shape": (ENV_DIM,), "names": None},
-        "observation.poses": {"dtype": "float32", "shape": (NUM_POSES, 7), "names": None},
-        "action": {"dtype": "float32", "shape": (ACTION_DIM,), "names": None},
-    }
-    if with_images:
-        feats["observation.images.cam"] = {
-            "dtype": "image",
-            "shape": (24, 24, 3),
-            "names": ["height", "width", "channels"],
-        }
-    return feats
-
-
-def make_tiny_dataset(
-    root: Path, repo_id: str = "local/euclidean_flow_tiny", episodes: int = 2, length: int = 24, seed: int = 0
-):
-    """``episodes`` episodes of ``length`` frames of smooth synthetic data; returns the dataset."""
-    from lerobot.datasets.lerobot_dataset import LeRobotDataset
-
-    rng = np.random.default_rng(seed)
-    ds = LeRobotDataset.create(
-        repo_id=repo_id, root=root, fps=10, features=dataset_features(), use_videos=False
-    )
-    for _ in range(episodes):
-        goal = rng.uniform(-0.3, 0.3, size=3).astype(np.float32)
-        for i in range(length):
-            s = i / (length - 1)
-            state = np.concatenate([goal * s, np.eye(3)[:, :2].T.ravel(), [0.04, -0.04]]).astype(np.float32)
-            env = np.concatenate([goal, np.eye(3)[:, :2].T.ravel()]).astype(np.float32)
-            poses = np.zeros((NUM_POSES, 7), np.float32)
-            poses[:, 3] = 1.0
-            action = np.concatenate(
-                [goal * min(1.0, s + 0.1), np.eye(3)[:, :2].T.ravel(), [np.sign(0.5 - s)]]
-            )
-            ds.add_frame(
-                {
-                    "observation.state": state,
-                    "observation.environment_state": env,
-                    "observation.poses": poses,
-                    "action": action.astype(np.float32),
-                    "task": "reach",
-                }
-            )
-        ds.save_episode()
-    ds.finalize()
-    return ds
+from ...synthetic_dataset import make_reach_dataset
 
 
 @pytest.fixture(scope="session")
 def tiny_dataset(tmp_path_factory) -> Path:
     """Root of a tiny dataset (repo id ``local/euclidean_flow_tiny``), built once per session."""
     root = tmp_path_factory.mktemp("data") / "euclidean_flow_tiny"
-    make_tiny_dataset(root)
-    return root
+    return make_reach_dataset(root, repo_id="local/euclidean_flow_tiny", episodes=2)
 
 
 # ------------------------------------------------------------------------------------------------
