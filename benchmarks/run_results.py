@@ -79,6 +79,7 @@ def _sweep(
             [sys.executable, "-m", "lerobot_actionflow.policies.sweep",
              f"--checkpoints=[{','.join(str(c) for c in checkpoints)}]",
              "--env.type=actionflow", f"--env.task={task}", *extra,
+             *([f"--env.episode_length={args.episode_length}"] if args.episode_length else []),
              f"--inference_steps=[{','.join(map(str, steps))}]",
              f"--eval.n_episodes={args.eval_episodes}", f"--eval.batch_size={args.eval_batch_size}",
              f"--seed={args.eval_seed}", "--device=cpu", f"--output_dir={out}"],
@@ -108,6 +109,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--eval-episodes", type=int, default=50)
     ap.add_argument("--eval-batch-size", type=int, default=10)
     ap.add_argument("--eval-seed", type=int, default=1000)
+    ap.add_argument(
+        "--episode-length", type=int, default=None, help="evaluation episode cap (default: the task's)"
+    )
     ap.add_argument("--plot", type=Path, default=None, help="write the IS sweep as a PNG here")
     args = ap.parse_args(argv)
 
