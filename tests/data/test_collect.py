@@ -96,19 +96,34 @@ def _wait_for_first_episode(proc, root, timeout=150.0):
     raise AssertionError("no episode saved in time")
 
 
-def test_sigint_after_first_episode_leaves_a_loadable_dataset(tmp_path):
-    root = tmp_path / "lift"
-    cmd = [str(BIN / "actionflow-collect"), "--task", "Lift", "--episodes", "50", "--root", str(root)]
+def _interrupted_collect(root, episodes: int, wait_until) -> subprocess.Popen:
+    """Start ``actionflow-collect`` on Lift, send SIGINT once ``wait_until(proc)`` returns, and
+    return the finished process (killed if it does not exit)."""
+    cmd = [
+        str(BIN / "actionflow-collect"),
+        "--task",
+        "Lift",
+        "--episodes",
+        str(episodes),
+        "--root",
+        str(root),
+    ]
     cmd += ["--repo-id", REPO_ID, "--no-progress"]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=cli_env())
     try:
-        _wait_for_first_episode(proc, root)
+        wait_until(proc)
         proc.send_signal(signal.SIGINT)
         proc.wait(timeout=120)
     finally:
         if proc.poll() is None:
             proc.kill()
             proc.wait()
+    return proc
+
+
+def test_sigint_after_first_episode_leaves_a_loadable_dataset(tmp_path):
+    root = tmp_path / "lift"
+    proc = _interrupted_collect(root, 50, lambda p: _wait_for_first_episode(p, root))
     assert proc.returncode == 130, proc.stderr.read()[-3000:]
     ds = load(root)
     meta = json.loads((root / "meta" / "actionflow_collect.json").read_text())
@@ -121,20 +136,14 @@ def test_sigint_after_first_episode_leaves_a_loadable_dataset(tmp_path):
 
 def test_sigint_before_any_episode_removes_the_folder(tmp_path):
     root = tmp_path / "lift"
-    cmd = [str(BIN / "actionflow-collect"), "--task", "Lift", "--episodes", "5", "--root", str(root)]
-    cmd += ["--repo-id", REPO_ID, "--no-progress"]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=cli_env())
-    try:
+
+    def dataset_created(proc):  # the dataset exists, no episode saved yet
         t0 = time.time()
-        while not (root / "meta" / "info.json").exists():  # the dataset is created, nothing saved yet
+        while not (root / "meta" / "info.json").exists():
             assert proc.poll() is None and time.time() - t0 < 120, "collect did not create the dataset"
             time.sleep(0.01)
-        proc.send_signal(signal.SIGINT)
-        proc.wait(timeout=120)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
+
+    proc = _interrupted_collect(root, 5, dataset_created)
     assert proc.returncode == 130
     assert not root.exists()
 
