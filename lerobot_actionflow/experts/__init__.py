@@ -18,6 +18,7 @@ from lerobot_actionflow.experts.pick_place import (
     ThreadingExpert,
     ThreePieceAssemblyExpert,
 )
+from lerobot_actionflow.experts.tool_hang import ToolHangExpert
 
 EXPERTS: dict[str, type[Expert]] = {}
 
@@ -36,6 +37,7 @@ for _cls in (
     ThreePieceAssemblyExpert,
     ThreadingExpert,
     CoffeeExpert,
+    ToolHangExpert,
 ):
     register_expert(_cls)
 

@@ -65,3 +65,15 @@ def test_coffee_d2_expert_succeeds_with_machine_turned_away():
         assert ep.success, f"failed in phase {expert.phase}"
     finally:
         env.close()
+
+
+def test_tool_hang_expert_inserts_the_frame_and_hangs_the_tool():
+    # The longest expert (about 600 of 700 steps): frame into the stand, then the ring hooked
+    # over the bar with the tool grasped at the one heading that keeps the wrist in range.
+    env = gym.make("lerobot_actionflow/ToolHang-v0", render_mode=None)
+    try:
+        expert = make_expert("ToolHang", env)
+        ep = run_episode(env, expert, 0, record=False)
+        assert ep.success, f"failed in phase {expert.phase}"
+    finally:
+        env.close()
