@@ -18,8 +18,9 @@ def cli_env() -> dict[str, str]:
     return {**os.environ, "HF_HUB_OFFLINE": "1", "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
 
 
-def run_collect(root: Path, episodes: int, *extra: str, timeout: int = 180) -> subprocess.CompletedProcess:
-    cmd = [
+def collect_command(root: Path, episodes: int, *extra: str) -> list[str]:
+    """``actionflow-collect`` on Lift into ``root`` (the tests' repo id, no progress bar)."""
+    return [
         str(BIN / "actionflow-collect"),
         "--task",
         "Lift",
@@ -32,6 +33,10 @@ def run_collect(root: Path, episodes: int, *extra: str, timeout: int = 180) -> s
         "--no-progress",
         *extra,
     ]
+
+
+def run_collect(root: Path, episodes: int, *extra: str, timeout: int = 180) -> subprocess.CompletedProcess:
+    cmd = collect_command(root, episodes, *extra)
     return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=cli_env())
 
 

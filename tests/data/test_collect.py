@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from lerobot_actionflow.data.collect import main
-from tests.data.conftest import BIN, REPO_ID, cli_env, run_collect
+from tests.data.conftest import REPO_ID, cli_env, collect_command, run_collect
 
 
 def load(root):
@@ -99,16 +99,7 @@ def _wait_for_first_episode(proc, root, timeout=150.0):
 def _interrupted_collect(root, episodes: int, wait_until) -> subprocess.Popen:
     """Start ``actionflow-collect`` on Lift, send SIGINT once ``wait_until(proc)`` returns, and
     return the finished process (killed if it does not exit)."""
-    cmd = [
-        str(BIN / "actionflow-collect"),
-        "--task",
-        "Lift",
-        "--episodes",
-        str(episodes),
-        "--root",
-        str(root),
-    ]
-    cmd += ["--repo-id", REPO_ID, "--no-progress"]
+    cmd = collect_command(root, episodes)
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=cli_env())
     try:
         wait_until(proc)
