@@ -62,8 +62,9 @@ def test_registry():
         # carry path and the hand's heading over the holder both used to knock the lid).
         ("Coffee_D2", 1),
         # The longest expert (about 600 of 700 steps): frame into the stand, then the ring hooked
-        # over the bar with the tool grasped at the one heading that keeps the wrist in range.
-        ("ToolHang", 0),
+        # over the bar. Seed 60 failed with tool_hang-1: the rod jammed in the tube 1.8 cm above
+        # the floor and the frame, dropped from there, leaned out of the success check.
+        ("ToolHang", 60),
     ],
 )
 def test_expert_succeeds_on_a_hard_seed(task, seed):
