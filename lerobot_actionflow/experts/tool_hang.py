@@ -155,7 +155,8 @@ class ToolHangExpert(PickPlaceExpert):
             def target(obs, mem) -> Pose:
                 r_f = frame_upright(obs, mem)
                 q = tube(obs)
-                q[2] = obj_pose(obs, stand)[0][2] + dz
+                stand_z = obj_pose(obs, stand)[0][2]
+                q[2] = stand_z + dz
                 p, r = held_target(mem, "frame", (q - r_f @ FRAME_TIP, r_f))
                 if servo:
                     p_f, rr_f = obj_pose(obs, frame)
@@ -167,7 +168,7 @@ class ToolHangExpert(PickPlaceExpert):
                     # about the tube's mouth, so moving the hand one way moves the tip the other,
                     # and the wound-up correction jams the rod diagonally a centimetre above the
                     # floor (it then falls and leans out of the check's tolerance on release).
-                    if tip[2] > obj_pose(obs, stand)[0][2] + TUBE_TOP:
+                    if tip[2] > stand_z + TUBE_TOP:
                         c = servo_correction(mem, "frame_corr", err, 0.15, 0.025)
                     p = p + c
                 return p, r
