@@ -32,7 +32,7 @@ a frame costs tens of milliseconds, more than a physics step: request images onl
 Seeding: ``reset(seed=s)`` re-seeds, in place, the one numpy generator through which robosuite
 samples robot initialisation noise and object placements, and the generator of the scene
 transform; the same seed gives the same initial state, and with the same actions the same
-episode.
+episode, in any env instance (what robosuite draws at construction is seeded too).
 """
 
 from __future__ import annotations
@@ -454,7 +454,11 @@ class PoseTokenEnv(gym.Env):
 
 def make_robosuite_env(spec: TaskSpec, **overrides):
     """The raw robosuite env of a task, configured as the pose-token env uses it: Panda, absolute
-    world OSC_POSE, no robosuite rendering or camera observations, soft resets, no horizon."""
+    world OSC_POSE, no robosuite rendering or camera observations, soft resets, no horizon.
+
+    robosuite's generator is seeded (0) at construction because it also draws parts of the model
+    when it is built (Lift's cube size, 0.040-0.044 m): unseeded, every env instance (every
+    process, every eval worker) had its own, so one episode seed gave different scenes."""
     kwargs = dict(
         robots="Panda",
         controller_configs=absolute_pose_controller_config(),
@@ -466,6 +470,7 @@ def make_robosuite_env(spec: TaskSpec, **overrides):
         control_freq=CONTROL_FREQ,
         ignore_done=True,
         hard_reset=False,
+        seed=0,
     )
     kwargs.update(spec.env_kwargs)
     kwargs.update(overrides)
