@@ -70,6 +70,9 @@ class Waypoint:
         timeout: steps after which the phase is left even if not reached.
         track: recompute the target every step (else once, at phase entry).
         on_exit: ``(obs, mem) -> None`` called when the phase ends.
+        when: ``(obs, mem) -> bool``, asked as the phase is reached (with the observation of
+            the step that ended the previous one): False skips it (no step is spent), for plans
+            with optional parts.
     """
 
     name: str
@@ -82,6 +85,7 @@ class Waypoint:
     timeout: int = 200
     track: bool = False
     on_exit: Callable[[dict, dict], None] | None = None
+    when: Callable[[dict, dict], bool] | None = None
 
 
 @dataclass
@@ -125,6 +129,7 @@ class WaypointExpert(Expert):
         if s.cmd is None:
             s.cmd = self.eef(obs)
             s.mem["gripper"] = -1.0
+            self._skip_unwanted(obs)
         if self.done:
             return fr.action_from_pose(*s.cmd, s.mem["gripper"])
         wp = self.waypoints[s.index]
@@ -144,7 +149,14 @@ class WaypointExpert(Expert):
             if wp.on_exit is not None:
                 wp.on_exit(obs, s.mem)
             s.index, s.steps, s.held, s.target = s.index + 1, 0, 0, None
+            self._skip_unwanted(obs)
         return action
+
+    def _skip_unwanted(self, obs: dict[str, Any]) -> None:
+        """Pass over the waypoints, from the current one on, whose ``when`` says no."""
+        s = self.state
+        while not self.done and (w := self.waypoints[s.index].when) is not None and not w(obs, s.mem):
+            s.index += 1
 
     def _step_towards(self, cmd: Pose, target: Pose, v: float, w: float) -> Pose:
         p, r = cmd

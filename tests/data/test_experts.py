@@ -9,8 +9,10 @@ import numpy as np
 import pytest
 
 import lerobot_actionflow.envs
+from lerobot_actionflow.envs.rotations import matrix_to_quat
 from lerobot_actionflow.experts import EXPERTS, expert_class, make_expert
 from lerobot_actionflow.experts import frames as fr
+from lerobot_actionflow.experts.base import Waypoint, WaypointExpert
 from lerobot_actionflow.experts.rollout import run_episode
 
 
@@ -75,3 +77,35 @@ def test_expert_succeeds_on_a_hard_seed(task, seed):
         assert ep.success, f"failed in phase {expert.phase}"
     finally:
         env.close()
+
+
+def test_waypoint_with_a_false_condition_is_skipped_without_a_step():
+    """``Waypoint.when`` is asked once, as the phase is reached: False skips the phase (its target
+    is never computed, no action is spent on it); True runs it."""
+    asked, computed = [], []
+    down = fr.top_down(0.0)
+
+    def at(x, name):
+        def target(obs, mem):
+            computed.append(name)
+            return np.array([x, 0.0, 1.0]), down
+
+        return target
+
+    class Plan(WaypointExpert):
+        def plan(self, rng):
+            return [
+                Waypoint("a", at(0.0, "a"), tol=1.0),
+                Waypoint("b", at(0.5, "b"), tol=1.0, when=lambda o, m: asked.append("b") or False),
+                Waypoint("c", at(0.0, "c"), tol=1.0, when=lambda o, m: asked.append("c") or True),
+            ]
+
+    expert = Plan(env=None)
+    expert.reset(np.random.default_rng(0))
+    obs = {"poses": np.concatenate([[0.0, 0.0, 1.0], matrix_to_quat(down)])[None, :]}  # EEF at a and c
+    phases = []
+    while not expert.done and len(phases) < 10:
+        phases.append(expert.phase)
+        assert abs(expert.act(obs)[0]) < 1e-9  # never commanded towards b's x = 0.5
+    assert phases == ["a", "c"], phases
+    assert asked == ["b", "c"] and "b" not in computed
