@@ -72,9 +72,14 @@ def wrap(a: float) -> float:
     return math.pi - (math.pi - a) % (2 * math.pi)
 
 
-def top_down(yaw: float) -> np.ndarray:
-    """Top-down EEF orientation turned by ``yaw`` about world z from :data:`R_DOWN`."""
-    return rz(yaw) @ R_DOWN
+def top_down(yaw: float, lean: float = 0.0) -> np.ndarray:
+    """Top-down EEF orientation turned by ``yaw`` about world z from :data:`R_DOWN`, then
+    tilted by ``lean`` about its own x axis (the fingers' closing axis): ``Rz(yaw) R_DOWN
+    Rx(lean)``. The tilt keeps both finger pads at one height; it moves the wrist, which sits
+    ``L`` behind the grip site along the approach axis, by ``L sin(lean)`` along the EEF y axis
+    (``(cos yaw, sin yaw, 0)``)."""
+    r = rz(yaw) @ R_DOWN
+    return r if lean == 0.0 else r @ so3_exp(np.array([lean, 0.0, 0.0]))
 
 
 #: Reachable headings ``psi`` (rad, relative to the home heading) of a top-down Panda grasp:

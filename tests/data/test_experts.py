@@ -79,6 +79,37 @@ def test_expert_succeeds_on_a_hard_seed(task, seed):
         env.close()
 
 
+def test_three_piece_assembly_expert_relocates_a_far_piece_then_succeeds():
+    """Seed 17 of ThreePieceAssembly_D2 puts piece 1 0.79 m from the robot base, where
+    three_piece_assembly-1's top-down pick straightened the arm against its elbow limit and the
+    episode failed; version 2 first sets the piece down 0.62-0.66 m from the base."""
+    env = gym.make("lerobot_actionflow/ThreePieceAssembly_D2-v0", render_mode=None)
+    try:
+        expert = make_expert("ThreePieceAssembly_D2", env)
+        ep = run_episode(env, expert, 17, record=False)
+        mem = expert.state.mem
+        base_xy = env.unwrapped.robosuite_env.robots[0].base_pos[:2]
+        assert mem["p1_relocated"] and not mem["p2_relocated"]
+        assert 0.62 <= float(np.linalg.norm(mem["p1_spot"][:2] - base_xy)) <= 0.66
+        assert ep.success, f"failed in phase {expert.phase}"
+    finally:
+        env.close()
+
+
+@pytest.mark.parametrize("psi", [0.0, 1.1, -2.5])
+@pytest.mark.parametrize("lean", [-0.45, 0.0, 0.4])
+def test_leaning_hand_keeps_its_closing_axis_and_moves_the_wrist_along_eef_y(psi, lean):
+    r = fr.top_down(psi, lean)
+    np.testing.assert_allclose(r.T @ r, np.eye(3), atol=1e-12)
+    # The fingers close along EEF x: still horizontal, so both pads stay at one height.
+    np.testing.assert_allclose(r[:, 0], fr.top_down(psi)[:, 0], atol=1e-12)
+    assert abs(r[2, 0]) < 1e-12
+    # Unit vector from the grip site to the wrist (back along the approach axis).
+    wrist = -r[:, 2]
+    s = math.sin(lean)
+    np.testing.assert_allclose(wrist, [s * math.cos(psi), s * math.sin(psi), math.cos(lean)], atol=1e-12)
+
+
 def test_waypoint_with_a_false_condition_is_skipped_without_a_step():
     """``Waypoint.when`` is asked once, as the phase is reached: False skips the phase (its target
     is never computed, no action is spent on it); True runs it."""
