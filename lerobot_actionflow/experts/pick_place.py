@@ -174,7 +174,7 @@ class PickPlaceExpert(WaypointExpert):
             return p + np.array([0.0, 0.0, lift_h]), r
 
         lift_h = float(rng.uniform(*lift_range))
-        # (The random draws keep their order: the speed, then the pause.)
+        # Draw the speed before the pause, as before: the other experts keep their demonstrations.
         return [
             Waypoint(
                 "approach",
