@@ -27,7 +27,7 @@ from lerobot_actionflow.flow import se3 as se3_flow
 from lerobot_actionflow.geometry.se3 import rp_to_pose7
 from lerobot_actionflow.policies.actionflow.configuration_actionflow import ActionflowConfig
 from lerobot_actionflow.policies.actionflow.modeling_actionflow import ActionflowPolicy
-from lerobot_actionflow.schema import pose_to_action
+from lerobot_actionflow.schema.tensors import pose_to_action
 
 
 def make_config(args, device: str, fast: bool) -> ActionflowConfig:

@@ -44,7 +44,7 @@ from lerobot_actionflow.policies.actionflow.modeling_actionflow import Actionflo
 from lerobot_actionflow.policies.euclidean_flow.configuration_euclidean_flow import EuclideanFlowConfig
 from lerobot_actionflow.policies.euclidean_flow.modeling_euclidean_flow import EuclideanFlowPolicy
 from lerobot_actionflow.policies.sweep import set_inference_steps
-from lerobot_actionflow.schema import pose_to_action
+from lerobot_actionflow.schema.tensors import pose_to_action
 
 POLICIES = {
     "actionflow": (ActionflowConfig, ActionflowPolicy),

@@ -9,7 +9,7 @@ import torch
 
 from lerobot_actionflow import geometry as g
 from lerobot_actionflow.geometry.se3 import compose, rp_to_pose7, rp_to_pose9
-from lerobot_actionflow.schema import pose_to_action
+from lerobot_actionflow.schema.tensors import pose_to_action
 
 
 def schema_features(num_objects: int, image_shape: tuple[int, int, int] | None = None) -> dict:

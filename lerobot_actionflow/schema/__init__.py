@@ -1,48 +1,83 @@
 """The dataset / env / policy contract: feature names, shapes and the action layout.
 
-One schema, shared by the envs (observations they emit, actions they accept), the datasets
-(what collection and conversion write) and the policies (what they read and produce). No
-LeRobot import: these are plain names and torch helpers.
+Torch-free and LeRobot-free, so that the envs, the data tools, the policies and the configs all
+import their keys and shapes from here (tensor helpers on the action layout live beside it in
+:mod:`lerobot_actionflow.schema.tensors`).
 
-* ``observation.poses`` float32 ``(N, 7)``: entity poses ``[x, y, z, qw, qx, qy, qz]`` in the
-  robot base/world frame, row 0 the end-effector, then the task's objects in a fixed order.
-* ``observation.state`` float32 ``(11,)``: ``[eef xyz (3), eef rot6d (6), gripper qpos (2)]``.
-* ``observation.environment_state`` float32 ``(9 (N - 1),)``: object poses ``[xyz, rot6d]``.
-* ``observation.images.<camera>``: optional, e.g. ``wrist``, ``agentview``.
-* ``action`` float32 ``(10,)``: absolute EEF target ``[x, y, z, rot6d (6), gripper]``, gripper
-  in ``[-1, 1]`` (-1 open, +1 closed).
+Dataset and policy features, and the env observation keys they come from (LeRobot's
+``preprocess_observation`` maps ``agent_pos`` -> ``observation.state``, ``environment_state`` ->
+``observation.environment_state``, any other array key ``k`` -> ``observation.k``):
+
+| dataset / policy key              | env key              | dtype   | shape                   |
+| --------------------------------- | -------------------- | ------- | ----------------------- |
+| ``observation.poses``             | ``poses``            | float32 | ``(N, 7)`` pose7 rows   |
+| ``observation.state``             | ``agent_pos``        | float32 | ``(11,)``               |
+| ``observation.environment_state`` | ``environment_state``| float32 | ``(9 (N - 1),)``        |
+| ``observation.images.<camera>``   | ``pixels/<camera>``  | uint8   | ``(H, W, 3)`` in the env|
+| ``action``                        | (the env's action)   | float32 | ``(10,)``               |
+
+* ``pose7`` = ``[x, y, z, qw, qx, qy, qz]`` (scalar-first quaternion, ``qw >= 0``), in the robot
+  base/world frame; row 0 of ``observation.poses`` is the end-effector, then the task's objects
+  in a fixed order.
+* ``pose9`` = ``[x, y, z, rot6d]``, where ``rot6d`` is the first two columns of the rotation
+  matrix ``(r00, r10, r20, r01, r11, r21)``.
+* ``observation.state`` = ``[eef pose9 (9), gripper finger qpos (2)]``.
+* ``observation.environment_state`` = the object poses (rows 1.. of ``observation.poses``) as
+  ``pose9``, concatenated.
+* ``action`` = ``[absolute EEF target pose9 (9), gripper]``, gripper in ``[-1, 1]`` (-1 open,
+  +1 closed).
 """
 
 from __future__ import annotations
 
-import torch
-
-from lerobot_actionflow.geometry.se3 import pose9_to_rp, rp_to_pose9
-
+# -- dataset / policy feature keys
 POSES_KEY = "observation.poses"
 STATE_KEY = "observation.state"
 ENV_STATE_KEY = "observation.environment_state"
 IMAGES_PREFIX = "observation.images."
 ACTION_KEY = "action"
 
-ACTION_DIM = 10
-STATE_DIM = 11
+# -- env observation keys (raw Gymnasium dict), and the camera images' sub-dict
+ENV_POSES = "poses"
+ENV_AGENT_POS = "agent_pos"
+ENV_STATE = "environment_state"
+ENV_PIXELS = "pixels"
+#: Env observation key -> dataset / policy key (images: ``pixels/<cam>`` -> ``IMAGES_PREFIX + cam``).
+ENV_TO_DATASET_KEY = {ENV_POSES: POSES_KEY, ENV_AGENT_POS: STATE_KEY, ENV_STATE: ENV_STATE_KEY}
+
+# -- layouts
+POSE7_DIM = 7
+POSE9_DIM = 9
+ROT6D_DIM = 6
+GRIPPER_QPOS_DIM = 2
+STATE_DIM = POSE9_DIM + GRIPPER_QPOS_DIM
+ACTION_DIM = POSE9_DIM + 1
 #: Indices of the gripper finger positions in ``observation.state``.
-STATE_GRIPPER_INDICES = (9, 10)
+STATE_GRIPPER_INDICES = tuple(range(POSE9_DIM, STATE_DIM))
+#: Index of the gripper command in ``action``.
+ACTION_GRIPPER_INDEX = POSE9_DIM
 
 
-def action_to_pose(action: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """``(..., 10)`` action -> rotation ``(..., 3, 3)`` (Gram-Schmidt), position ``(..., 3)``,
-    gripper ``(...)``."""
-    if action.shape[-1] != ACTION_DIM:
-        raise ValueError(
-            f"'{ACTION_KEY}' must have last dimension {ACTION_DIM} [x y z rot6d gripper], "
-            f"got {tuple(action.shape)}"
-        )
-    r, p = pose9_to_rp(action[..., :9])
-    return r, p, action[..., 9]
+def image_key(camera: str) -> str:
+    """``observation.images.<camera>``."""
+    return IMAGES_PREFIX + camera
 
 
-def pose_to_action(r: torch.Tensor, p: torch.Tensor, g: torch.Tensor) -> torch.Tensor:
-    """Inverse of :func:`action_to_pose`: ``(..., 3, 3), (..., 3), (...)`` -> ``(..., 10)``."""
-    return torch.cat((rp_to_pose9(r, p), g[..., None]), -1)
+def env_pixels_key(camera: str) -> str:
+    """The env-side (flattened) key ``pixels/<camera>`` of a camera image."""
+    return f"{ENV_PIXELS}/{camera}"
+
+
+def env_state_dim(num_tokens: int) -> int:
+    """Width of ``observation.environment_state`` for ``num_tokens`` poses (EEF included)."""
+    return POSE9_DIM * (num_tokens - 1)
+
+
+def feature_shapes(num_tokens: int) -> dict[str, tuple[int, ...]]:
+    """Shape of every non-image feature for a task with ``num_tokens`` poses (EEF included)."""
+    return {
+        POSES_KEY: (num_tokens, POSE7_DIM),
+        STATE_KEY: (STATE_DIM,),
+        ENV_STATE_KEY: (env_state_dim(num_tokens),),
+        ACTION_KEY: (ACTION_DIM,),
+    }

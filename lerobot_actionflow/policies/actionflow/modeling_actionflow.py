@@ -24,14 +24,8 @@ from lerobot_actionflow.geometry import check_finite, check_quaternion, quaterni
 from lerobot_actionflow.nn import ActionFlowNetwork, ObservationTokens, PoseAdaptation
 from lerobot_actionflow.nn.image_encoder import ResNet18Encoder
 from lerobot_actionflow.policies.actionflow.configuration_actionflow import ActionflowConfig
-from lerobot_actionflow.schema import (
-    ACTION_DIM,
-    ACTION_KEY,
-    POSES_KEY,
-    STATE_KEY,
-    action_to_pose,
-    pose_to_action,
-)
+from lerobot_actionflow.schema import ACTION_DIM, ACTION_KEY, POSES_KEY, STATE_KEY
+from lerobot_actionflow.schema.tensors import action_to_pose, pose_to_action
 
 
 class ActionflowPolicy(PreTrainedPolicy):

@@ -8,7 +8,7 @@ from lerobot.configs.types import FeatureType, PolicyFeature
 from lerobot_actionflow import geometry as g
 from lerobot_actionflow.geometry.se3 import rp_to_pose7
 from lerobot_actionflow.policies.actionflow.configuration_actionflow import ActionflowConfig
-from lerobot_actionflow.schema import action_to_pose, pose_to_action
+from lerobot_actionflow.schema.tensors import action_to_pose, pose_to_action
 
 
 def small_config(

@@ -9,7 +9,7 @@ from lerobot_actionflow import geometry as g
 from lerobot_actionflow.flow import se3 as se3_flow
 from lerobot_actionflow.nn import PoseAdaptation
 from lerobot_actionflow.policies.actionflow.modeling_actionflow import ActionflowPolicy
-from lerobot_actionflow.schema import action_to_pose
+from lerobot_actionflow.schema.tensors import action_to_pose
 
 from .helpers import random_batch, small_config, transform_batch
 

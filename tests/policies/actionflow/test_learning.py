@@ -5,7 +5,7 @@ import torch
 from lerobot_actionflow import geometry as g
 from lerobot_actionflow.geometry.se3 import compose, rp_to_pose7
 from lerobot_actionflow.policies.actionflow.modeling_actionflow import ActionflowPolicy
-from lerobot_actionflow.schema import action_to_pose, pose_to_action
+from lerobot_actionflow.schema.tensors import action_to_pose, pose_to_action
 
 from .helpers import small_config
 
