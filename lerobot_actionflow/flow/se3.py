@@ -1,7 +1,9 @@
 """Flow matching on SE(3) action poses with a Euclidean gripper channel (App. A, C).
 
-A sample is a chunk of ``H`` poses ``(r, p)`` (``(B, H, 3, 3)``, ``(B, H, 3)``) and gripper
-values ``g`` (``(B, H)``).
+A sample is a :class:`PoseChunk`: ``H`` poses ``(r, p)`` (``(B, H, 3, 3)``, ``(B, H, 3)``) and
+gripper values ``g`` (``(B, H)``); a velocity is a :class:`PoseVelocity` ``(v_r, v_p, v_g)`` in
+the local frame of each pose. Both keep the order rotation, translation, gripper, like
+:mod:`lerobot_actionflow.geometry`.
 
 * Initial distribution ``q0`` expressed in a reference frame ``(R_e, p_e)`` (the current
   end-effector): ``p_0 = p_e + R_e eps_p`` with ``eps_p ~ N(0, sigma^2 I)``, and ``r_0 = R_e r_loc``
@@ -24,16 +26,49 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import torch
 
 from lerobot_actionflow.geometry import so3
 
-#: ``(r_t, p_t, g_t, t) -> (v_p, v_r, v_g)`` with shapes ``(B,H,3), (B,H,3), (B,H)``; ``t`` is ``(B,)``.
-VelocityField = Callable[
-    [torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor],
-    tuple[torch.Tensor, torch.Tensor, torch.Tensor],
-]
+
+class PoseChunk(NamedTuple):
+    """A chunk of poses with a gripper channel.
+
+    Attributes:
+        r: rotations ``(B, H, 3, 3)``; p: positions ``(B, H, 3)``; g: gripper values ``(B, H)``.
+    """
+
+    r: torch.Tensor
+    p: torch.Tensor
+    g: torch.Tensor
+
+
+class PoseVelocity(NamedTuple):
+    """Velocities of a :class:`PoseChunk` in the local frame of each pose.
+
+    Attributes:
+        r: body angular velocity ``(B, H, 3)``; p: translation velocity ``(B, H, 3)`` in the
+            pose's frame (metres per unit flow time); g: gripper velocity ``(B, H)``.
+    """
+
+    r: torch.Tensor
+    p: torch.Tensor
+    g: torch.Tensor
+
+
+class PathSample(NamedTuple):
+    """A point ``x_t`` of the conditional path and its target velocity ``u_t``."""
+
+    x_t: PoseChunk
+    u_t: PoseVelocity
+
+
+#: ``velocity(x, k)``: the field at ``x`` and flow time ``times[k]`` of the grid being
+#: integrated. The step index (rather than the time) lets a caller precompute per-step
+#: conditioning once per chunk.
+VelocityField = Callable[[PoseChunk, int], PoseVelocity]
 
 
 @dataclass
@@ -75,9 +110,7 @@ def draw_local_noise(
     return LocalNoise(r, p, g)
 
 
-def noise_to_world(
-    noise: LocalNoise, r_ref: torch.Tensor, p_ref: torch.Tensor
-) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+def noise_to_world(noise: LocalNoise, r_ref: torch.Tensor, p_ref: torch.Tensor) -> PoseChunk:
     """Express local noise in the world: ``(R_e r_loc, p_e + R_e p_loc, g)``.
 
     Args:
@@ -85,63 +118,34 @@ def noise_to_world(
     """
     r = r_ref[:, None] @ noise.r
     p = p_ref[:, None] + (r_ref[:, None] @ noise.p[..., None]).squeeze(-1)
-    return r, p, noise.g
+    return PoseChunk(r, p, noise.g)
 
 
-def geodesic_path(
-    r0: torch.Tensor,
-    p0: torch.Tensor,
-    g0: torch.Tensor,
-    r1: torch.Tensor,
-    p1: torch.Tensor,
-    g1: torch.Tensor,
-    t: torch.Tensor,
-) -> tuple[tuple[torch.Tensor, torch.Tensor, torch.Tensor], tuple[torch.Tensor, torch.Tensor, torch.Tensor]]:
-    """The conditional path at time ``t`` and its local target velocities.
-
-    Args:
-        r0, p0, g0: noise ``(B, H, 3, 3), (B, H, 3), (B, H)``.
-        r1, p1, g1: data, same shapes.
-        t: ``(B,)``.
-    Returns:
-        ``(r_t, p_t, g_t)`` and ``(v_p, v_r, v_g)`` (local frame of ``r_t``).
-    """
+def geodesic_path(x0: PoseChunk, x1: PoseChunk, t: torch.Tensor) -> PathSample:
+    """The conditional path from noise ``x0`` to data ``x1`` at times ``t`` ``(B,)``, and its
+    target velocity in the local frame of ``r_t``: ``v_r = Log(r_0^T r_1)``,
+    ``v_p = r_t^T (p_1 - p_0)``, ``v_g = g_1 - g_0``."""
     tt = t[:, None]
-    v_r = so3.log(r0.transpose(-1, -2) @ r1)
-    r_t = r0 @ so3.exp(tt[..., None] * v_r)
-    dp = p1 - p0
-    p_t = p0 + tt[..., None] * dp
+    v_r = so3.log(x0.r.transpose(-1, -2) @ x1.r)
+    r_t = x0.r @ so3.exp(tt[..., None] * v_r)
+    dp = x1.p - x0.p
+    p_t = x0.p + tt[..., None] * dp
     v_p = (r_t.transpose(-1, -2) @ dp[..., None]).squeeze(-1)
-    g_t = g0 + tt * (g1 - g0)
-    return (r_t, p_t, g_t), (v_p, v_r, g1 - g0)
+    g_t = x0.g + tt * (x1.g - x0.g)
+    return PathSample(PoseChunk(r_t, p_t, g_t), PoseVelocity(v_r, v_p, x1.g - x0.g))
 
 
-def euler_step(
-    r: torch.Tensor,
-    p: torch.Tensor,
-    g: torch.Tensor,
-    v_p: torch.Tensor,
-    v_r: torch.Tensor,
-    v_g: torch.Tensor,
-    dt: torch.Tensor | float,
-) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """One step of Eq. (8) on SE(3) and a Euclidean step on the gripper."""
-    p = p + dt * (r @ v_p[..., None]).squeeze(-1)
-    r = r @ so3.exp(dt * v_r)
-    return r, p, g + dt * v_g
+def euler_step(x: PoseChunk, v: PoseVelocity, dt: torch.Tensor | float) -> PoseChunk:
+    """One step of Eq. (8) on SE(3) and a Euclidean step on the gripper:
+    ``p <- p + r v_p dt``, ``r <- r Exp(v_r dt)``, ``g <- g + v_g dt``."""
+    p = x.p + dt * (x.r @ v.p[..., None]).squeeze(-1)
+    r = x.r @ so3.exp(dt * v.r)
+    return PoseChunk(r, p, x.g + dt * v.g)
 
 
-def euler_sample(
-    velocity: VelocityField,
-    r0: torch.Tensor,
-    p0: torch.Tensor,
-    g0: torch.Tensor,
-    times: torch.Tensor,
-) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Integrate the learned field over the grid ``times`` (``(K + 1,)``, from 0 to 1)."""
-    r, p, g = r0, p0, g0
+def euler_sample(velocity: VelocityField, x0: PoseChunk, times: torch.Tensor) -> PoseChunk:
+    """Integrate the field over the grid ``times`` (``(K + 1,)``, from 0 to 1) by :func:`euler_step`."""
+    x = x0
     for k in range(times.shape[0] - 1):
-        t = times[k].expand(r.shape[0])
-        v_p, v_r, v_g = velocity(r, p, g, t)
-        r, p, g = euler_step(r, p, g, v_p, v_r, v_g, times[k + 1] - times[k])
-    return r, p, g
+        x = euler_step(x, velocity(x, k), times[k + 1] - times[k])
+    return x

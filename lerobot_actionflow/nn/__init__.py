@@ -3,7 +3,7 @@ field, the adaptation module, image encoders. No LeRobot or robosuite imports.""
 
 from lerobot_actionflow.nn.actionflow_network import ActionFlowNetwork, ObservationTokens
 from lerobot_actionflow.nn.dp_transformer import DPTransformer
-from lerobot_actionflow.nn.ipa import InvariantPointAttention
+from lerobot_actionflow.nn.ipa import InvariantPointAttention, IPASize
 from lerobot_actionflow.nn.pose_adaptation import PoseAdaptation
 from lerobot_actionflow.nn.se3_transformer import IPABlock, SE3InvariantTransformer
 
@@ -11,6 +11,7 @@ __all__ = [
     "ActionFlowNetwork",
     "DPTransformer",
     "IPABlock",
+    "IPASize",
     "InvariantPointAttention",
     "ObservationTokens",
     "PoseAdaptation",

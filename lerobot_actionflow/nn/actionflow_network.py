@@ -29,7 +29,9 @@ from dataclasses import dataclass, field
 import torch
 from torch import nn
 
+from lerobot_actionflow.flow.se3 import PoseChunk, PoseVelocity
 from lerobot_actionflow.nn.embeddings import SinusoidalTimeEmbedding
+from lerobot_actionflow.nn.ipa import DEFAULT_IPA_SIZE, IPASize
 from lerobot_actionflow.nn.pose_adaptation import PoseAdaptation
 from lerobot_actionflow.nn.se3_transformer import SE3InvariantTransformer
 
@@ -75,17 +77,14 @@ class ActionFlowNetwork(nn.Module):
         num_scalars: int = 0,
         camera_entities: tuple[int, ...] = (),
         image_feature_dim: int = 512,
-        dim: int = 128,
+        size: IPASize = DEFAULT_IPA_SIZE,
         depth: int = 4,
-        num_heads: int = 8,
-        head_dim: int = 16,
-        num_query_points: int = 4,
-        num_value_points: int = 8,
         mlp_ratio: float = 2.0,
         dropout: float = 0.0,
         adaptation: PoseAdaptation | None = None,
     ):
         super().__init__()
+        dim = size.dim
         self.num_entities, self.n_obs_steps, self.horizon = num_entities, n_obs_steps, horizon
         self.num_scalars = num_scalars
         self.camera_entities = tuple(camera_entities)
@@ -102,9 +101,7 @@ class ActionFlowNetwork(nn.Module):
             self.camera_embed = nn.Parameter(torch.randn(len(self.camera_entities), dim) * 0.02)
             self.image_proj = nn.Linear(image_feature_dim, dim)
         self.time_embed = SinusoidalTimeEmbedding(dim)
-        self.transformer = SE3InvariantTransformer(
-            dim, depth, num_heads, head_dim, num_query_points, num_value_points, mlp_ratio, dropout
-        )
+        self.transformer = SE3InvariantTransformer(size, depth, mlp_ratio, dropout)
         self.head = nn.Sequential(nn.LayerNorm(dim), nn.Linear(dim, 7))
 
     def encode_observations(self, obs: ObservationTokens) -> EncodedObservations:
@@ -140,34 +137,32 @@ class ActionFlowNetwork(nn.Module):
     def velocity(
         self,
         encoded: EncodedObservations,
-        r: torch.Tensor,
-        p: torch.Tensor,
-        g: torch.Tensor,
+        x: PoseChunk,
         t: torch.Tensor | None = None,
         shifts: list[torch.Tensor] | None = None,
-    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    ) -> PoseVelocity:
         """Local velocities of the action tokens.
 
         Args:
             encoded: output of :meth:`encode_observations`.
-            r, p, g: current action chunk ``(B, H, 3, 3), (B, H, 3), (B, H)``.
+            x: current action chunk ``r (B, H, 3, 3), p (B, H, 3), g (B, H)``.
             t: flow time ``(B,)``, or instead
             shifts: its conditioning from :meth:`time_shifts` (``depth x (B or 1, C)``).
         Returns:
-            ``v_p (B, H, 3)`` in metres, ``v_r (B, H, 3)``, ``v_g (B, H)``.
+            ``v_r (B, H, 3)``, ``v_p (B, H, 3)`` in metres, ``v_g (B, H)``.
         """
         if shifts is None:
             if t is None:
                 raise ValueError("velocity needs the flow time t or its time shifts")
             shifts = self.time_shifts(t)
-        f = self.step_embed[None] + self.gripper_proj(g[..., None])
-        r_a, p_a = self.adaptation(encoded.r_ref, encoded.p_ref, r, p)
+        f = self.step_embed[None] + self.gripper_proj(x.g[..., None])
+        r_a, p_a = self.adaptation(encoded.r_ref, encoded.p_ref, x.r, x.p)
         out = self.transformer.forward_with_context(
             f, r_a, p_a - encoded.center, None, encoded.context, shifts=shifts
         )
         v = self.head(out)
-        return v[..., :3] / self.adaptation.translation_scale, v[..., 3:6], v[..., 6]
+        return PoseVelocity(r=v[..., 3:6], p=v[..., :3] / self.adaptation.translation_scale, g=v[..., 6])
 
-    def forward(self, obs: ObservationTokens, r, p, g, t):
+    def forward(self, obs: ObservationTokens, x: PoseChunk, t: torch.Tensor) -> PoseVelocity:
         """One evaluation ``v_theta``; see :meth:`velocity`."""
-        return self.velocity(self.encode_observations(obs), r, p, g, t)
+        return self.velocity(self.encode_observations(obs), x, t)

@@ -20,16 +20,18 @@ a global ``T``: ``T T_i x - T T_j y`` has the norm of ``T_i x - T_j y``, and
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import torch
 import torch.nn.functional as F
 from torch import nn
 
 
-class InvariantPointAttention(nn.Module):
-    """IPA over a set of posed tokens.
+@dataclass(frozen=True)
+class IPASize:
+    """The sizes of an IPA layer.
 
-    Args:
+    Attributes:
         dim: feature size ``C``.
         num_heads: ``N_head``.
         head_dim: scalar channels per head ``c``.
@@ -37,15 +39,24 @@ class InvariantPointAttention(nn.Module):
         num_value_points: ``N_pv`` value points per head.
     """
 
-    def __init__(
-        self,
-        dim: int,
-        num_heads: int = 8,
-        head_dim: int = 16,
-        num_query_points: int = 4,
-        num_value_points: int = 8,
-    ):
+    dim: int = 128
+    num_heads: int = 8
+    head_dim: int = 16
+    num_query_points: int = 4
+    num_value_points: int = 8
+
+
+#: The paper's IPA sizes (App. D).
+DEFAULT_IPA_SIZE = IPASize()
+
+
+class InvariantPointAttention(nn.Module):
+    """IPA over a set of posed tokens of the given :class:`IPASize`."""
+
+    def __init__(self, size: IPASize):
         super().__init__()
+        dim, num_heads, head_dim = size.dim, size.num_heads, size.head_dim
+        num_query_points, num_value_points = size.num_query_points, size.num_value_points
         self.num_heads, self.head_dim = num_heads, head_dim
         self.num_query_points, self.num_value_points = num_query_points, num_value_points
         # One projection for everything: scalar q, k, v (3 H c) and the local points q, k (2 H N_qp 3)

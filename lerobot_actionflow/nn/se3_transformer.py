@@ -22,23 +22,17 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from lerobot_actionflow.nn.ipa import InvariantPointAttention
+from lerobot_actionflow.nn.ipa import DEFAULT_IPA_SIZE, InvariantPointAttention, IPASize
 
 
 class IPABlock(nn.Module):
-    def __init__(
-        self,
-        dim: int,
-        num_heads: int,
-        head_dim: int,
-        num_query_points: int,
-        num_value_points: int,
-        mlp_ratio: float = 2.0,
-        dropout: float = 0.0,
-    ):
+    """One block of the module docstring: IPA of ``size``, an MLP of ``mlp_ratio * dim`` hidden units."""
+
+    def __init__(self, size: IPASize, mlp_ratio: float = 2.0, dropout: float = 0.0):
         super().__init__()
+        dim = size.dim
         self.cond = nn.Linear(dim, dim)
-        self.ipa = InvariantPointAttention(dim, num_heads, head_dim, num_query_points, num_value_points)
+        self.ipa = InvariantPointAttention(size)
         self.norm1 = nn.LayerNorm(dim)
         hidden = int(dim * mlp_ratio)
         self.mlp = nn.Sequential(nn.Linear(dim, hidden), nn.GELU(), nn.Linear(hidden, dim))
@@ -92,21 +86,10 @@ class SE3InvariantTransformer(nn.Module):
     """``depth`` IPA blocks sharing the same frames."""
 
     def __init__(
-        self,
-        dim: int = 128,
-        depth: int = 4,
-        num_heads: int = 8,
-        head_dim: int = 16,
-        num_query_points: int = 4,
-        num_value_points: int = 8,
-        mlp_ratio: float = 2.0,
-        dropout: float = 0.0,
+        self, size: IPASize = DEFAULT_IPA_SIZE, depth: int = 4, mlp_ratio: float = 2.0, dropout: float = 0.0
     ):
         super().__init__()
-        self.blocks = nn.ModuleList(
-            IPABlock(dim, num_heads, head_dim, num_query_points, num_value_points, mlp_ratio, dropout)
-            for _ in range(depth)
-        )
+        self.blocks = nn.ModuleList(IPABlock(size, mlp_ratio, dropout) for _ in range(depth))
 
     def forward(self, f, r, p, cond=None, mask=None):
         """All tokens attend to each other (``mask`` optional): ``(B, L, C) -> (B, L, C)``."""

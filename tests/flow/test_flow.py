@@ -53,38 +53,46 @@ def test_euclidean_flow_exact_velocity_reaches_data(k):
 
 def test_se3_path_endpoints_and_velocity_consistency():
     gen = torch.Generator().manual_seed(1)
-    r0, p0, g0 = _chunk(4, 16, gen)
-    r1, p1, g1 = _chunk(4, 16, gen)
-    (rt, pt, gt), _ = se3.geodesic_path(r0, p0, g0, r1, p1, g1, torch.zeros(4, dtype=torch.float64))
-    assert torch.allclose(rt, r0, atol=1e-12) and torch.allclose(pt, p0) and torch.allclose(gt, g0)
-    (rt, pt, gt), _ = se3.geodesic_path(r0, p0, g0, r1, p1, g1, torch.ones(4, dtype=torch.float64))
-    assert torch.allclose(rt, r1, atol=1e-10) and torch.allclose(pt, p1) and torch.allclose(gt, g1)
+    x0 = se3.PoseChunk(*_chunk(4, 16, gen))
+    x1 = se3.PoseChunk(*_chunk(4, 16, gen))
+    start = se3.geodesic_path(x0, x1, torch.zeros(4, dtype=torch.float64)).x_t
+    assert torch.allclose(start.r, x0.r, atol=1e-12) and torch.allclose(start.p, x0.p)
+    assert torch.allclose(start.g, x0.g)
+    end = se3.geodesic_path(x0, x1, torch.ones(4, dtype=torch.float64)).x_t
+    assert torch.allclose(end.r, x1.r, atol=1e-10) and torch.allclose(end.p, x1.p)
+    assert torch.allclose(end.g, x1.g)
     # The local velocities are the derivative of the path: a tiny Euler step follows it.
     t = torch.rand(4, generator=gen, dtype=torch.float64) * 0.9
-    (rt, pt, gt), (vp, vr, vg) = se3.geodesic_path(r0, p0, g0, r1, p1, g1, t)
+    x_t, u_t = se3.geodesic_path(x0, x1, t)
     h = 1e-6
-    (rh, ph, gh), _ = se3.geodesic_path(r0, p0, g0, r1, p1, g1, t + h)
-    re, pe, ge = se3.euler_step(rt, pt, gt, vp, vr, vg, h)
-    assert torch.allclose(re, rh, atol=1e-10) and torch.allclose(pe, ph, atol=1e-10)
-    assert torch.allclose(ge, gh, atol=1e-10)
+    ahead = se3.geodesic_path(x0, x1, t + h).x_t
+    stepped = se3.euler_step(x_t, u_t, h)
+    for a, b in zip(stepped, ahead, strict=True):
+        assert torch.allclose(a, b, atol=1e-10)
+    # Control: the translation velocity read in the world frame instead of the pose's does not
+    # follow the path (this is what the local frame convention guards).
+    world = se3.PoseVelocity(u_t.r, (x_t.r @ u_t.p[..., None]).squeeze(-1), u_t.g)
+    assert not torch.allclose(se3.euler_step(x_t, world, h).p, ahead.p, atol=1e-10)
 
 
 @pytest.mark.parametrize("spacing", ["uniform", "exponential"])
 def test_se3_euler_with_exact_field_lands_on_data(spacing):
     """The conditional field of a single target is integrated exactly by Euler on the group."""
     gen = torch.Generator().manual_seed(2)
-    r0, p0, g0 = _chunk(3, 5, gen)
+    x0 = se3.PoseChunk(*_chunk(3, 5, gen))
     r1, p1, g1 = _chunk(3, 5, gen)
+    times = schedules.make_time_grid(4, spacing, dtype=torch.float64)
 
-    def exact(r, p, gg, t):
+    def exact(x, k):
         # Velocity that points from the current pose to the target, reached at t = 1.
-        rem = (1 - t)[:, None]
-        v_r = g.log(r.transpose(-1, -2) @ r1) / rem[..., None]
-        v_p = (r.transpose(-1, -2) @ ((p1 - p) / rem[..., None])[..., None]).squeeze(-1)
-        return v_p, v_r, (g1 - gg) / rem
+        rem = 1 - times[k]
+        v_r = g.log(x.r.transpose(-1, -2) @ r1) / rem
+        v_p = (x.r.transpose(-1, -2) @ ((p1 - x.p) / rem)[..., None]).squeeze(-1)
+        return se3.PoseVelocity(v_r, v_p, (g1 - x.g) / rem)
 
-    r, p, gg = se3.euler_sample(exact, r0, p0, g0, schedules.make_time_grid(4, spacing, dtype=torch.float64))
-    assert torch.allclose(r, r1, atol=1e-9) and torch.allclose(p, p1, atol=1e-9) and torch.allclose(gg, g1)
+    out = se3.euler_sample(exact, x0, times)
+    assert torch.allclose(out.r, r1, atol=1e-9) and torch.allclose(out.p, p1, atol=1e-9)
+    assert torch.allclose(out.g, g1)
 
 
 def test_local_noise_moves_with_the_reference_frame():

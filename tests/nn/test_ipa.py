@@ -6,7 +6,7 @@ import torch
 import torch.nn.functional as F
 
 from lerobot_actionflow import geometry as g
-from lerobot_actionflow.nn import InvariantPointAttention, SE3InvariantTransformer
+from lerobot_actionflow.nn import InvariantPointAttention, IPASize, SE3InvariantTransformer
 
 
 def reference_ipa(m: InvariantPointAttention, f, r, p):
@@ -56,7 +56,7 @@ def _frames(b, n, gen, dtype):
 def test_ipa_matches_reference_formula():
     torch.manual_seed(0)
     m = InvariantPointAttention(
-        dim=12, num_heads=2, head_dim=4, num_query_points=3, num_value_points=2
+        IPASize(dim=12, num_heads=2, head_dim=4, num_query_points=3, num_value_points=2)
     ).double()
     with torch.no_grad():
         m.point_weight.copy_(torch.tensor([0.3, -1.2], dtype=torch.float64))
@@ -68,7 +68,8 @@ def test_ipa_matches_reference_formula():
 
 def test_ipa_mask_blocks_attention():
     torch.manual_seed(0)
-    m = InvariantPointAttention(dim=8, num_heads=2, head_dim=4, num_query_points=2, num_value_points=2)
+    size = IPASize(dim=8, num_heads=2, head_dim=4, num_query_points=2, num_value_points=2)
+    m = InvariantPointAttention(size)
     gen = torch.Generator().manual_seed(2)
     f = torch.randn(1, 4, 8, generator=gen)
     r, p = _frames(1, 4, gen, torch.float32)
@@ -87,7 +88,7 @@ def test_ipa_mask_blocks_attention():
 def test_transformer_is_invariant_and_sensitive_to_relative_poses():
     torch.manual_seed(0)
     net = SE3InvariantTransformer(
-        dim=16, depth=2, num_heads=2, head_dim=4, num_query_points=2, num_value_points=2
+        IPASize(dim=16, num_heads=2, head_dim=4, num_query_points=2, num_value_points=2), depth=2
     )
     net = net.double()
     gen = torch.Generator().manual_seed(3)
@@ -115,7 +116,7 @@ def test_cached_context_equals_masked_full_attention():
     cannot see the queries and only the queries are time-conditioned."""
     torch.manual_seed(0)
     net = SE3InvariantTransformer(
-        dim=16, depth=3, num_heads=2, head_dim=4, num_query_points=2, num_value_points=2
+        IPASize(dim=16, num_heads=2, head_dim=4, num_query_points=2, num_value_points=2), depth=3
     )
     net = net.double()
     gen = torch.Generator().manual_seed(4)

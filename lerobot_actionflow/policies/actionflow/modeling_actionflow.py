@@ -21,7 +21,7 @@ from torch import Tensor
 from lerobot_actionflow.flow import schedules
 from lerobot_actionflow.flow import se3 as se3_flow
 from lerobot_actionflow.geometry import check_finite, check_quaternion, quaternion_to_matrix
-from lerobot_actionflow.nn import ActionFlowNetwork, ObservationTokens, PoseAdaptation
+from lerobot_actionflow.nn import ActionFlowNetwork, IPASize, ObservationTokens, PoseAdaptation
 from lerobot_actionflow.nn.image_encoder import ResNet18Encoder
 from lerobot_actionflow.policies.actionflow.configuration_actionflow import ActionflowConfig
 from lerobot_actionflow.schema import ACTION_DIM, ACTION_KEY, POSES_KEY, STATE_KEY
@@ -42,6 +42,13 @@ class ActionflowPolicy(PreTrainedPolicy):
         self.image_encoder = (
             ResNet18Encoder(config.image_size, config.image_encoder_weights) if self.image_keys else None
         )
+        size = IPASize(
+            dim=config.dim,
+            num_heads=config.num_heads,
+            head_dim=config.head_dim,
+            num_query_points=config.num_query_points,
+            num_value_points=config.num_value_points,
+        )
         self.network = ActionFlowNetwork(
             num_entities=self.num_entities,
             n_obs_steps=config.n_obs_steps,
@@ -49,12 +56,8 @@ class ActionflowPolicy(PreTrainedPolicy):
             num_scalars=config.num_scalars,
             camera_entities=camera_entities,
             image_feature_dim=ResNet18Encoder.out_dim,
-            dim=config.dim,
+            size=size,
             depth=config.num_layers,
-            num_heads=config.num_heads,
-            head_dim=config.head_dim,
-            num_query_points=config.num_query_points,
-            num_value_points=config.num_value_points,
             mlp_ratio=config.mlp_ratio,
             dropout=config.dropout,
             adaptation=PoseAdaptation(
@@ -89,23 +92,23 @@ class ActionflowPolicy(PreTrainedPolicy):
                 f"'{ACTION_KEY}' must have shape (B, {cfg.horizon}, {ACTION_DIM}), got {tuple(action.shape)}"
             )
         check_finite(action, ACTION_KEY)
-        r1, p1, g1 = action_to_pose(action)
+        x1 = se3_flow.PoseChunk(*action_to_pose(action))
 
         encoded = self.network.encode_observations(obs)
         noise = se3_flow.draw_local_noise(
             b, cfg.horizon, cfg.noise_sigma, cfg.noise_rotation, cfg.noise_kappa, dtype=action.dtype,
             device=action.device,
         )  # fmt: skip
-        r0, p0, g0 = se3_flow.noise_to_world(noise, encoded.r_ref, encoded.p_ref)
+        x0 = se3_flow.noise_to_world(noise, encoded.r_ref, encoded.p_ref)
         t = schedules.sample_train_times(
             b, cfg.train_time_distribution, cfg.train_time_beta, dtype=action.dtype, device=action.device
         )
-        (r_t, p_t, g_t), (v_p, v_r, v_g) = se3_flow.geodesic_path(r0, p0, g0, r1, p1, g1, t)
-        pred_p, pred_r, pred_g = self.network.velocity(encoded, r_t, p_t, g_t, t)
+        x_t, u_t = se3_flow.geodesic_path(x0, x1, t)
+        pred = self.network.velocity(encoded, x_t, t)
 
-        err_p = ((pred_p - v_p) * cfg.translation_scale).square().sum(-1)  # (B, H)
-        err_r = (pred_r - v_r).square().sum(-1)
-        err_g = (pred_g - v_g).square()
+        err_p = ((pred.p - u_t.p) * cfg.translation_scale).square().sum(-1)  # (B, H)
+        err_r = (pred.r - u_t.r).square().sum(-1)
+        err_g = (pred.g - u_t.g).square()
         valid = (
             ~batch["action_is_pad"] if "action_is_pad" in batch else torch.ones_like(err_g, dtype=torch.bool)
         )
@@ -207,17 +210,16 @@ class ActionflowPolicy(PreTrainedPolicy):
         """The whole K-step sampler as one tensor-in/tensor-out function (what gets compiled)."""
         obs = ObservationTokens(obs_r, obs_p, scalars, image_features)
         encoded = self.network.encode_observations(obs)
-        r0, p0, g0 = se3_flow.noise_to_world(
-            se3_flow.LocalNoise(noise_r, noise_p, noise_g), encoded.r_ref, encoded.p_ref
-        )
+        noise = se3_flow.LocalNoise(noise_r, noise_p, noise_g)
+        x0 = se3_flow.noise_to_world(noise, encoded.r_ref, encoded.p_ref)
         # Every flow time of the chunk is known: condition all K steps with one call per block.
         shifts = self.network.time_shifts(times[:-1])  # depth x (K, C)
-        dts = times[1:] - times[:-1]
-        r, p, g = r0, p0, g0
-        for k in range(times.shape[0] - 1):
-            v_p, v_r, v_g = self.network.velocity(encoded, r, p, g, shifts=[s[k : k + 1] for s in shifts])
-            r, p, g = se3_flow.euler_step(r, p, g, v_p, v_r, v_g, dts[k])
-        return pose_to_action(r, p, g.clamp(-1.0, 1.0))
+
+        def velocity(x: se3_flow.PoseChunk, k: int) -> se3_flow.PoseVelocity:
+            return self.network.velocity(encoded, x, shifts=[s[k : k + 1] for s in shifts])
+
+        x1 = se3_flow.euler_sample(velocity, x0, times)
+        return pose_to_action(x1.r, x1.p, x1.g.clamp(-1.0, 1.0))
 
     def _observation_tokens(self, batch: dict[str, Tensor]) -> ObservationTokens:
         """Validate the observation part of a batch and turn it into network inputs."""
