@@ -13,7 +13,7 @@ steps, horizon 16, 8 executed actions. Untrained weights: neither figure depends
   all three, timed round-robin (one call of each policy in turn) so that load from other processes
   hits them alike; median and p90 of ``--repeats`` calls after ``--warmup``. IS is the number of
   network calls: Euler steps for the flows; DDIM steps for diffusion, DDPM at its 100 training
-  steps (``lerobot_actionflow.policies.sweep.set_inference_steps``).
+  steps (``lerobot_actionflow.evaluation.sweep.set_inference_steps``).
 - Training: samples per second of ``forward`` + ``backward`` + AdamW step at ``--train-batch``
   (the policies' own losses), the three interleaved step by step.
 
@@ -43,7 +43,7 @@ from lerobot_actionflow.policies.actionflow.configuration_actionflow import Acti
 from lerobot_actionflow.policies.actionflow.modeling_actionflow import ActionflowPolicy
 from lerobot_actionflow.policies.euclidean_flow.configuration_euclidean_flow import EuclideanFlowConfig
 from lerobot_actionflow.policies.euclidean_flow.modeling_euclidean_flow import EuclideanFlowPolicy
-from lerobot_actionflow.policies.sweep import set_inference_steps
+from lerobot_actionflow.evaluation.sweep import set_inference_steps
 from lerobot_actionflow.schema.tensors import pose_to_action
 
 POLICIES = {

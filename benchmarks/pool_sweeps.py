@@ -3,7 +3,7 @@
 An evaluation of 50 episodes can be run as 20 episodes (``--seed=1000``) and 30 more later
 (``--seed=1020``: LeRobot seeds the envs of batch ``i`` with ``seed + i * batch_size``, so the
 two runs cover seeds 1000-1049 once each). Each input is a ``sweep_results.json`` of
-``lerobot_actionflow.policies.sweep`` (a list of rows) or a ``results.json`` of
+``lerobot_actionflow.evaluation.sweep`` (a list of rows) or a ``results.json`` of
 ``run_results.py`` (its ``is_sweep`` rows). Rows are grouped by (checkpoint, inference steps);
 per group the successes ``pc_success * n_episodes / 100`` and the episodes are summed:
 

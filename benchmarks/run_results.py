@@ -6,7 +6,7 @@ Stages (each skipped when its output exists, so an interrupted run continues):
 2. ``lerobot-train`` of ``actionflow``, ``euclidean_flow`` (the diffusion UNet backbone, so that it
    differs from Diffusion Policy only by the flow) and LeRobot's ``diffusion`` on that dataset,
    the same steps, batch, history, horizon and executed actions for all three;
-3. ``lerobot_actionflow.policies.sweep``: success against inference steps IS on the training
+3. ``lerobot_actionflow.evaluation.sweep``: success against inference steps IS on the training
    distribution, the same evaluation seeds for every cell;
 4. the same sweep at one IS (``--generalisation-is``) on other evaluation envs: the task's D1/D2
    variants (mimicgen tasks) and scene-transformed layouts (``--env.scene_*``), with and without
@@ -76,7 +76,7 @@ def _sweep(
     result = out / "sweep_results.json"
     if not result.exists():
         _run(
-            [sys.executable, "-m", "lerobot_actionflow.policies.sweep",
+            [sys.executable, "-m", "lerobot_actionflow.evaluation.sweep",
              f"--checkpoints=[{','.join(str(c) for c in checkpoints)}]",
              "--env.type=actionflow", f"--env.task={task}", *extra,
              *([f"--env.episode_length={args.episode_length}"] if args.episode_length else []),

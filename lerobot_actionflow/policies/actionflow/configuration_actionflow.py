@@ -9,7 +9,14 @@ from lerobot.configs.types import FeatureType, NormalizationMode
 from lerobot.optim.optimizers import AdamWConfig
 from lerobot.optim.schedulers import CosineAnnealingWithWarmupSchedulerConfig
 
-from lerobot_actionflow.schema import ACTION_DIM, POSES_KEY
+from lerobot_actionflow.schema import (
+    ACTION_DIM,
+    ACTION_KEY,
+    POSE7_DIM,
+    POSES_KEY,
+    STATE_GRIPPER_INDICES,
+    STATE_KEY,
+)
 
 
 @PreTrainedConfig.register_subclass("actionflow")
@@ -32,6 +39,13 @@ class ActionflowConfig(PreTrainedConfig):
         n_obs_steps: observation history [5 on the real robot; 2 here by default].
         horizon: action chunk length [16].
         n_action_steps: actions executed per chunk before re-planning.
+
+    Chunking: the ``horizon`` actions start at the current step (``action_delta_indices`` 0 ..
+    horizon - 1), and ``predict_action_chunk`` returns all of them. The action tokens are posed
+    at the actions they stand for, relative to the current EEF, and actions of past steps would
+    only spend tokens on what was already executed. ``euclidean_flow`` samples from the oldest
+    observation step, like LeRobot's ``diffusion``, and drops the past steps when it returns a
+    chunk, so both policies' ``predict_action_chunk`` return the actions from the current step on.
         state_scalar_indices: entries of ``observation.state`` fed to the EEF token as
             invariant scalars (default: the two gripper finger positions of the schema), times
             ``state_scalar_scale`` (Panda finger positions are within 0.04 m: 25 brings them to ~1).
@@ -70,7 +84,7 @@ class ActionflowConfig(PreTrainedConfig):
         }
     )
 
-    state_scalar_indices: tuple[int, ...] = (9, 10)
+    state_scalar_indices: tuple[int, ...] = STATE_GRIPPER_INDICES
     state_scalar_scale: float = 25.0
     camera_entities: tuple[int, ...] = ()
 
@@ -181,25 +195,25 @@ class ActionflowConfig(PreTrainedConfig):
         ft = self.poses_feature
         if ft is None:
             raise ValueError(
-                f"actionflow needs the input feature '{POSES_KEY}' (N, 7) [x y z qw qx qy qz], row 0 the "
-                f"end-effector; got input features {sorted(self.input_features or {})}"
+                f"actionflow needs the input feature '{POSES_KEY}' (N, {POSE7_DIM}) [x y z qw qx qy qz], "
+                f"row 0 the end-effector; got input features {sorted(self.input_features or {})}"
             )
-        if len(ft.shape) != 2 or ft.shape[1] != 7 or ft.shape[0] < 1:
-            raise ValueError(f"'{POSES_KEY}' must have shape (N, 7), got {tuple(ft.shape)}")
+        if len(ft.shape) != 2 or ft.shape[1] != POSE7_DIM or ft.shape[0] < 1:
+            raise ValueError(f"'{POSES_KEY}' must have shape (N, {POSE7_DIM}), got {tuple(ft.shape)}")
         act = self.action_feature
         if act is None:
-            raise ValueError("actionflow needs the output feature 'action' (10,)")
+            raise ValueError(f"actionflow needs the output feature '{ACTION_KEY}' ({ACTION_DIM},)")
         if tuple(act.shape) != (ACTION_DIM,):
             raise ValueError(
-                f"'action' must have shape ({ACTION_DIM},) [x y z rot6d(6) gripper], got {tuple(act.shape)}"
+                f"'{ACTION_KEY}' must have shape ({ACTION_DIM},) [x y z rot6d(6) gripper], "
+                f"got {tuple(act.shape)}"
             )
         state = self.robot_state_feature
         if state is not None and self.state_scalar_indices:
             bad = [i for i in self.state_scalar_indices if not 0 <= i < state.shape[0]]
             if bad:
                 raise ValueError(
-                    f"state_scalar_indices {bad} are outside 'observation.state' of shape "
-                    f"{tuple(state.shape)}"
+                    f"state_scalar_indices {bad} are outside '{STATE_KEY}' of shape {tuple(state.shape)}"
                 )
         n_cam = len(self.image_features)
         if self.camera_entities and len(self.camera_entities) != n_cam:

@@ -24,7 +24,7 @@ from lerobot_actionflow.geometry import check_finite, check_quaternion, quaterni
 from lerobot_actionflow.nn import ActionFlowNetwork, IPASize, ObservationTokens, PoseAdaptation
 from lerobot_actionflow.nn.image_encoder import ResNet18Encoder
 from lerobot_actionflow.policies.actionflow.configuration_actionflow import ActionflowConfig
-from lerobot_actionflow.schema import ACTION_DIM, ACTION_KEY, POSES_KEY, STATE_KEY
+from lerobot_actionflow.schema import ACTION_DIM, ACTION_KEY, POSE7_DIM, POSES_KEY, STATE_KEY
 from lerobot_actionflow.schema.tensors import action_to_pose, pose_to_action
 
 
@@ -132,11 +132,12 @@ class ActionflowPolicy(PreTrainedPolicy):
         noise: se3_flow.LocalNoise | None = None,
         num_inference_steps: int | None = None,
     ) -> Tensor:
-        """Sample an action chunk ``(B, horizon, 10)``.
+        """The sampled actions from the current step on: ``(B, horizon, 10)`` (the chunk starts at
+        the current step; see :class:`ActionflowConfig`).
 
         Args:
-            batch: observations ``(B, n_obs_steps, ...)`` (or ``(B, ...)`` when
-                ``n_obs_steps == 1``).
+            batch: the observation history ``(B, n_obs_steps, ...)``, oldest first (or
+                ``(B, ...)`` when ``n_obs_steps == 1``).
             noise: initial noise in the EEF frame (drawn if None).
             num_inference_steps: Euler steps K (default: the config's); no retraining needed.
         """
@@ -227,8 +228,8 @@ class ActionflowPolicy(PreTrainedPolicy):
         poses = _require(batch, POSES_KEY)
         if poses.ndim == 3 and cfg.n_obs_steps == 1:
             poses = poses[:, None]
-        expected = f"(B, {cfg.n_obs_steps}, {self.num_entities}, 7)"
-        if poses.ndim != 4 or poses.shape[1:] != (cfg.n_obs_steps, self.num_entities, 7):
+        expected = f"(B, {cfg.n_obs_steps}, {self.num_entities}, {POSE7_DIM})"
+        if poses.ndim != 4 or poses.shape[1:] != (cfg.n_obs_steps, self.num_entities, POSE7_DIM):
             raise ValueError(f"'{POSES_KEY}' must have shape {expected}, got {tuple(poses.shape)}")
         check_finite(poses, POSES_KEY)
         quat = check_quaternion(poses[..., 3:], atol=cfg.rotation_tolerance, name=POSES_KEY)

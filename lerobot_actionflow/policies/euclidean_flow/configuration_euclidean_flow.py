@@ -36,8 +36,10 @@ class EuclideanFlowConfig(PreTrainedConfig):
     """Rectified-flow policy on flat action chunks.
 
     Chunking (as Diffusion Policy): the network sees ``n_obs_steps`` observations and generates
-    ``horizon`` actions starting at the oldest observation; ``n_action_steps`` of them, from the
-    current step on, are executed (``n_action_steps <= horizon - n_obs_steps + 1``).
+    ``horizon`` actions starting at the oldest observation, so that the UNet backbone trains on
+    exactly the targets of LeRobot's ``diffusion``; ``predict_action_chunk`` returns the
+    ``horizon - n_obs_steps + 1`` of them from the current step on (as ``actionflow`` does), and
+    ``n_action_steps <= horizon - n_obs_steps + 1`` of those are executed per chunk.
 
     Flow: ``a_t = t a_1 + (1 - t) a_0``, ``a_0 ~ N(0, I)``, target ``u = a_1 - a_0``, loss
     ``||v_theta(a_t, t, o) - u||^2``, ``t ~ U[0, 1]`` (or ``Beta``); sampling by ``K`` Euler

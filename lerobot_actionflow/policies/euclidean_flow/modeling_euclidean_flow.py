@@ -27,9 +27,8 @@ from torch import Tensor, nn
 
 from lerobot_actionflow.flow.euclidean import euler_sample, linear_path
 from lerobot_actionflow.flow.schedules import make_time_grid, sample_train_times
-
-from .backbones import make_backbone
-from .configuration_euclidean_flow import EuclideanFlowConfig
+from lerobot_actionflow.policies.euclidean_flow.backbones import make_backbone
+from lerobot_actionflow.policies.euclidean_flow.configuration_euclidean_flow import EuclideanFlowConfig
 
 
 class ObservationEncoder(nn.Module):
@@ -226,18 +225,18 @@ class EuclideanFlowPolicy(PreTrainedPolicy):
         num_inference_steps: int | None = None,
         time_spacing: str | None = None,
     ) -> Tensor:
-        """``n_action_steps`` actions ``(B, n_action_steps, A)`` from the current step on.
+        """The sampled actions from the current step on: ``(B, horizon - n_obs_steps + 1, A)``.
 
-        Online (queues filled by :meth:`select_action`): the queued observation history is used.
-        Offline (empty queues): ``batch`` holds observations ``(B, S, ...)``.
+        ``batch`` holds the observation history ``(B, n_obs_steps, ...)``, oldest first (or
+        ``(B, ...)`` when ``n_obs_steps == 1``). The chunk the network samples starts at the oldest
+        observation step (see :class:`EuclideanFlowConfig`); the actions of the past steps are
+        dropped here.
         """
-        if any(len(q) for k, q in self._queues.items() if k != ACTION):
-            obs = {k: torch.stack(list(q), dim=1) for k, q in self._queues.items() if k != ACTION}
-        else:
-            obs = self._prepare(batch, with_time=True)
-        chunk = self.sample_chunk(obs, noise, num_inference_steps, time_spacing)
-        start = self.config.n_obs_steps - 1
-        return chunk[:, start : start + self.config.n_action_steps]
+        obs = self._prepare(batch, with_time=True)
+        return self._from_current_step(self.sample_chunk(obs, noise, num_inference_steps, time_spacing))
+
+    def _from_current_step(self, chunk: Tensor) -> Tensor:
+        return chunk[:, self.config.n_obs_steps - 1 :]
 
     @torch.no_grad()
     def select_action(self, batch: dict[str, Tensor], noise: Tensor | None = None) -> Tensor:
@@ -247,6 +246,7 @@ class EuclideanFlowPolicy(PreTrainedPolicy):
         obs = self._prepare(batch, with_time=False)
         self._queues = populate_queues(self._queues, obs)
         if not self._queues[ACTION]:
-            actions = self.predict_action_chunk(obs, noise=noise)
-            self._queues[ACTION].extend(actions.transpose(0, 1))
+            history = {k: torch.stack(list(q), dim=1) for k, q in self._queues.items() if k != ACTION}
+            actions = self._from_current_step(self.sample_chunk(history, noise=noise))
+            self._queues[ACTION].extend(actions[:, : self.config.n_action_steps].transpose(0, 1))
         return self._queues[ACTION].popleft()

@@ -63,7 +63,7 @@ def test_compiled_sampler_is_dropped_when_weights_may_change():
 
 
 def test_inference_step_sweep_sets_actionflow_euler_steps():
-    from lerobot_actionflow.policies.sweep import set_inference_steps
+    from lerobot_actionflow.evaluation.sweep import set_inference_steps
 
     policy = ActionflowPolicy(small_config()).eval()
     calls = []

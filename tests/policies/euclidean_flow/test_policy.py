@@ -63,7 +63,8 @@ def test_train_step_and_chunk_shapes(backbone, images):
     per_sample, _ = policy.forward(_batch(b=3, images=images), reduction="none")
     assert per_sample.shape == (3,)
     policy.eval()
-    assert policy.predict_action_chunk(_batch(images=images)).shape == (2, 4, ACT)
+    # the chunk from the current step on: horizon 8 from the oldest of 2 observation steps
+    assert policy.predict_action_chunk(_batch(images=images)).shape == (2, 7, ACT)
     step = {k: v[:, -1] for k, v in _batch(images=images).items() if k.startswith("observation")}
     actions = [policy.select_action(step) for _ in range(5)]
     assert all(a.shape == (2, ACT) for a in actions)

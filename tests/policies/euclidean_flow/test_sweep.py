@@ -15,7 +15,7 @@ import torch
 from lerobot.configs.types import FeatureType, PolicyFeature
 from lerobot.envs.configs import EnvConfig
 
-from lerobot_actionflow.policies.sweep import main, set_inference_steps
+from lerobot_actionflow.evaluation.sweep import main, set_inference_steps
 
 GYM_ID = "gym_ef_commit/Commit-v0"
 

@@ -13,7 +13,7 @@ Every IS uses the same env seeds (``--seed`` onwards), so the rates are paired c
 
 Usage::
 
-    python -m lerobot_actionflow.policies.sweep \\
+    python -m lerobot_actionflow.evaluation.sweep \\
         --checkpoints='[outputs/train/ef/checkpoints/last/pretrained_model]' \\
         --env.type=<env type> --env.task=<task> \\
         --inference_steps='[2,5,10,20,100]' --eval.n_episodes=50 --eval.batch_size=10 \\
@@ -175,7 +175,7 @@ def run_sweep(cfg: SweepConfig) -> list[dict]:
 
 
 def main(argv: list[str] | None = None) -> list[dict]:
-    """CLI entry point (``python -m lerobot_actionflow.policies.sweep --help``)."""
+    """CLI entry point (``python -m lerobot_actionflow.evaluation.sweep --help``)."""
     from lerobot.utils.import_utils import register_third_party_plugins
 
     logging.basicConfig(level=logging.INFO)
