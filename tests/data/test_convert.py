@@ -16,6 +16,7 @@ from lerobot_actionflow import geometry as g
 from lerobot_actionflow import rotations as rot
 from lerobot_actionflow.data import schema_arrays
 from lerobot_actionflow.data.convert import convert, main
+from lerobot_actionflow.data.features import default_repo_id
 from lerobot_actionflow.schema import ACTION_KEY, POSES_KEY, STATE_KEY
 from tests.data.conftest import BIN, cli_env
 from tests.data.robomimic_hdf5 import write_lift_hdf5, write_robomimic_hdf5
@@ -24,7 +25,7 @@ from tests.data.robomimic_hdf5 import write_lift_hdf5, write_robomimic_hdf5
 def _load(root):
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-    return LeRobotDataset("local/lift", root=root)
+    return LeRobotDataset(default_repo_id("Lift"), root=root)
 
 
 def _episode(ds, e):
