@@ -35,7 +35,7 @@ config, its ``body_parts.right``) gives the meaning of the arm actions:
 
 Errors: a missing group, dataset or observation key, or a malformed group (a dataset where a
 group is expected, wrong shapes, mismatched lengths, non-finite values) raises ``ValueError``
-naming it.
+naming it; so does a zero quaternion.
 """
 
 from __future__ import annotations
@@ -162,6 +162,14 @@ def dataset(
     return a
 
 
+def quaternions(parent, name: str, where: str, length: int) -> np.ndarray:
+    """``parent[name]``: scalar-last quaternions ``(T, 4)``, none zero, returned scalar-first."""
+    q = dataset(parent, name, where, (4,), length)
+    if (np.linalg.norm(q, axis=-1) < 1e-12).any():
+        raise ValueError(f"{where}/{name}: zero quaternions")
+    return xyzw_to_wxyz(q)
+
+
 # ------------------------------------------------------------------ file attributes
 def env_args(data) -> dict[str, Any]:
     """The parsed ``env_args`` attribute of the ``data`` group (``{}`` if absent)."""
@@ -267,7 +275,7 @@ def read_demo(data, name: str, task: str, static: dict[str, np.ndarray] | None =
     obs = group(demo, OBS_GROUP, where)
     ow = f"{where}/{OBS_GROUP}"
     eef_pos = dataset(obs, EEF_POS, ow, (3,), t_len)
-    hand_quat = xyzw_to_wxyz(dataset(obs, EEF_QUAT, ow, (4,), t_len))
+    hand_quat = quaternions(obs, EEF_QUAT, ow, t_len)
     gripper_qpos = dataset(obs, GRIPPER_QPOS, ow, (GRIPPER_QPOS_DIM,), t_len)
     prefixes, static = OBS_PREFIX.get(task, {}), static or {}
     objects = []
@@ -278,7 +286,7 @@ def read_demo(data, name: str, task: str, static: dict[str, np.ndarray] | None =
             objects.append(np.broadcast_to(pose, (t_len, POSE7_DIM)))
             continue
         pos = dataset(obs, f"{pre}_pos", ow, (3,), t_len)
-        quat = xyzw_to_wxyz(dataset(obs, f"{pre}_quat", ow, (4,), t_len))
+        quat = quaternions(obs, f"{pre}_quat", ow, t_len)
         objects.append(np.concatenate((pos, quat), axis=-1))
     object_poses = np.stack(objects, axis=1) if objects else np.zeros((t_len, 0, POSE7_DIM))
     return SourceDemo(actions, eef_pos, hand_quat, gripper_qpos, object_poses)

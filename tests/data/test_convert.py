@@ -108,6 +108,17 @@ def test_missing_obs_key_names_it_and_writes_nothing(tmp_path):
     _assert_nothing_written(tmp_path, root)
 
 
+def test_zero_quaternion_names_it_and_writes_nothing(tmp_path):
+    src = tmp_path / "lift.hdf5"
+    write_lift_hdf5(src, demos=2, length=4)
+    with h5py.File(src, "a") as f:
+        f["data/demo_1/obs/cube_quat"][2] = 0.0
+    root = tmp_path / "out"
+    with pytest.raises(ValueError, match=r"data/demo_1/obs/cube_quat: zero quaternions"):
+        convert(src, root)
+    _assert_nothing_written(tmp_path, root)
+
+
 def test_malformed_group_names_it_and_writes_nothing(tmp_path):
     src = tmp_path / "lift.hdf5"
     write_lift_hdf5(src, demos=2, length=4)
