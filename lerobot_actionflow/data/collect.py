@@ -21,8 +21,9 @@ Semantics:
 - ``meta/actionflow_collect.json`` records task, variant, expert class and version, base seed,
   the seeds kept and failed, attempts, successes and the success rate; it is rewritten after
   every saved episode.
-- fps is the env's control frequency (20 Hz). Each frame holds the observation the expert saw
-  and the action it took on it (``action[t]`` is the absolute EEF target sent at step ``t``).
+- fps is the env's control frequency (:data:`~lerobot_actionflow.envs.tasks.CONTROL_FREQ`). Each
+  frame holds the observation the expert saw and the action it took on it (``action[t]`` is the
+  absolute EEF target sent at step ``t``).
 """
 
 from __future__ import annotations
@@ -40,10 +41,6 @@ from typing import Any
 
 META_FILE = "actionflow_collect.json"
 EXIT_INTERRUPTED = 130
-
-
-def _default_repo_id(task: str) -> str:
-    return f"local/{task.lower()}"
 
 
 def read_collect_meta(root: str | Path) -> dict[str, Any] | None:
@@ -162,7 +159,7 @@ def collect(
     from tqdm import tqdm
 
     import lerobot_actionflow.envs  # noqa: F401  (gym ids)
-    from lerobot_actionflow.data.features import frame_from_obs, schema_features
+    from lerobot_actionflow.data.features import default_repo_id, frame_from_obs, schema_features
     from lerobot_actionflow.envs.tasks import get_task
     from lerobot_actionflow.experts import expert_class
     from lerobot_actionflow.experts.rollout import run_episode
@@ -170,7 +167,7 @@ def collect(
     spec = get_task(task)
     cls = expert_class(spec.name)  # fails early for a task without an expert
     root = Path(root)
-    repo_id = repo_id or _default_repo_id(spec.name)
+    repo_id = repo_id or default_repo_id(spec.name)
     cams = tuple(cameras) if images else ()
     features = schema_features(spec.num_tokens, cams, (image_size, image_size), image_format)
     if episodes < 0:

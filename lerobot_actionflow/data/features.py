@@ -1,12 +1,7 @@
-"""LeRobot feature spec of the schema and the env observation -> dataset frame mapping.
+"""The LeRobot feature spec of the schema and the env observation -> dataset frame mapping.
 
-| key                               | dtype   | shape          |
-| --------------------------------- | ------- | -------------- |
-| ``observation.poses``             | float32 | ``(N, 7)``     |
-| ``observation.state``             | float32 | ``(11,)``      |
-| ``observation.environment_state`` | float32 | ``(9 (N-1),)`` |
-| ``observation.images.<camera>``   | video or image, ``(H, W, 3)`` uint8 | optional |
-| ``action``                        | float32 | ``(10,)``      |
+Keys, dtypes and shapes are the schema's (:mod:`lerobot_actionflow.schema`); this module only
+puts them in LeRobot's ``features`` format and adds the optional camera images.
 """
 
 from __future__ import annotations
@@ -16,14 +11,17 @@ from typing import Any
 import numpy as np
 
 from lerobot_actionflow.schema import (
-    ACTION_DIM,
     ACTION_KEY,
-    ENV_STATE_KEY,
-    IMAGES_PREFIX,
-    POSES_KEY,
-    STATE_DIM,
-    STATE_KEY,
+    ENV_PIXELS,
+    ENV_TO_DATASET_KEY,
+    feature_shapes,
+    image_key,
 )
+
+
+def default_repo_id(task: str) -> str:
+    """The dataset repo id used when none is given: ``local/<task in lower case>``."""
+    return f"local/{task.lower()}"
 
 
 def schema_features(
@@ -33,17 +31,16 @@ def schema_features(
     image_dtype: str = "video",
 ) -> dict[str, dict]:
     """The ``features`` argument of ``LeRobotDataset.create`` for ``num_tokens`` = N poses (EEF
-    included) and optional cameras stored as ``image_dtype`` (``"video"`` or ``"image"``)."""
+    included): the schema's float32 features, then one ``(H, W, 3)`` image feature per camera,
+    stored as ``image_dtype`` (``"video"`` or ``"image"``)."""
     if image_dtype not in ("video", "image"):
         raise ValueError(f"image_dtype must be 'video' or 'image', got {image_dtype!r}")
     feats = {
-        POSES_KEY: {"dtype": "float32", "shape": (num_tokens, 7), "names": None},
-        STATE_KEY: {"dtype": "float32", "shape": (STATE_DIM,), "names": None},
-        ENV_STATE_KEY: {"dtype": "float32", "shape": (9 * (num_tokens - 1),), "names": None},
-        ACTION_KEY: {"dtype": "float32", "shape": (ACTION_DIM,), "names": None},
+        key: {"dtype": "float32", "shape": shape, "names": None}
+        for key, shape in feature_shapes(num_tokens).items()
     }
     for cam in cameras:
-        feats[IMAGES_PREFIX + cam] = {
+        feats[image_key(cam)] = {
             "dtype": image_dtype,
             "shape": (*image_size, 3),
             "names": ["height", "width", "channels"],
@@ -52,14 +49,12 @@ def schema_features(
 
 
 def frame_from_obs(obs: dict[str, Any], action: np.ndarray, task: str) -> dict[str, Any]:
-    """One ``add_frame`` dict from a pose-token env observation and the action taken on it."""
-    frame = {
-        POSES_KEY: np.asarray(obs["poses"], dtype=np.float32),
-        STATE_KEY: np.asarray(obs["agent_pos"], dtype=np.float32),
-        ENV_STATE_KEY: np.asarray(obs["environment_state"], dtype=np.float32),
-        ACTION_KEY: np.asarray(action, dtype=np.float32),
-        "task": task,
-    }
-    for cam, img in obs.get("pixels", {}).items():
-        frame[IMAGES_PREFIX + cam] = np.asarray(img, dtype=np.uint8)
+    """One ``add_frame`` dict from a pose-token env observation and the action taken on it: the
+    env keys renamed to dataset keys (``ENV_TO_DATASET_KEY``), the camera images of
+    ``obs[ENV_PIXELS]`` as uint8, the action, and the task description."""
+    frame = {key: np.asarray(obs[env_key], dtype=np.float32) for env_key, key in ENV_TO_DATASET_KEY.items()}
+    frame[ACTION_KEY] = np.asarray(action, dtype=np.float32)
+    frame["task"] = task
+    for cam, img in obs.get(ENV_PIXELS, {}).items():
+        frame[image_key(cam)] = np.asarray(img, dtype=np.uint8)
     return frame

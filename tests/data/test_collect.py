@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from lerobot_actionflow.data.collect import main
+from lerobot_actionflow.schema import ACTION_KEY, POSES_KEY, STATE_KEY, feature_shapes
 from tests.data.conftest import REPO_ID, cli_env, collect_command, run_collect
 
 
@@ -25,18 +26,15 @@ def test_collected_dataset_has_schema_keys_and_shapes(lift_dataset):
     assert ds.num_episodes == 2
     assert ds.fps == 20
     item = ds[0]
-    assert tuple(item["observation.poses"].shape) == (2, 7)
-    assert tuple(item["observation.state"].shape) == (11,)
-    assert tuple(item["observation.environment_state"].shape) == (9,)
-    assert tuple(item["action"].shape) == (10,)
+    assert {k: tuple(item[k].shape) for k in feature_shapes(2)} == feature_shapes(2)  # EEF + cube
     assert item["task"] == "Lift the red cube off the table."
     # Unit quaternions, and the state's EEF position equals pose row 0.
-    poses = np.stack([ds[i]["observation.poses"].numpy() for i in range(len(ds))])
+    poses = np.stack([ds[i][POSES_KEY].numpy() for i in range(len(ds))])
     np.testing.assert_allclose(np.linalg.norm(poses[..., 3:], axis=-1), 1.0, atol=1e-5)
-    states = np.stack([ds[i]["observation.state"].numpy() for i in range(len(ds))])
+    states = np.stack([ds[i][STATE_KEY].numpy() for i in range(len(ds))])
     np.testing.assert_allclose(states[:, :3], poses[:, 0, :3], atol=1e-6)
     # Expert actions: valid 6D rotations, the gripper opens and later closes in each episode.
-    actions = np.stack([ds[i]["action"].numpy() for i in range(len(ds))])
+    actions = np.stack([ds[i][ACTION_KEY].numpy() for i in range(len(ds))])
     np.testing.assert_allclose(np.linalg.norm(actions[:, 3:6], axis=-1), 1.0, atol=1e-5)
     episode = np.array([int(ds[i]["episode_index"]) for i in range(len(ds))])
     for e in (0, 1):
