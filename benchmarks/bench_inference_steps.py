@@ -33,9 +33,9 @@ from lerobot.configs.types import FeatureType, PolicyFeature
 from lerobot.policies.diffusion.configuration_diffusion import DiffusionConfig
 from lerobot.policies.diffusion.modeling_diffusion import DiffusionPolicy
 
+from lerobot_actionflow.evaluation.sweep import set_inference_steps
 from lerobot_actionflow.policies.euclidean_flow.configuration_euclidean_flow import EuclideanFlowConfig
 from lerobot_actionflow.policies.euclidean_flow.modeling_euclidean_flow import EuclideanFlowPolicy
-from lerobot_actionflow.evaluation.sweep import set_inference_steps
 
 STATE, ENV, ACTION, N_OBS, HORIZON, N_ACTION = 11, 9, 10, 2, 16, 8
 POLICIES = ("diffusion", "ef-unet", "ef-transformer")

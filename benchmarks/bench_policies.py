@@ -38,12 +38,12 @@ from lerobot.policies.diffusion.modeling_diffusion import DiffusionPolicy
 from run_results import COMMON, CPU_SIZE, PAPER_SIZE
 
 from lerobot_actionflow import geometry as g
+from lerobot_actionflow.evaluation.sweep import set_inference_steps
 from lerobot_actionflow.geometry.se3 import rp_to_pose7
 from lerobot_actionflow.policies.actionflow.configuration_actionflow import ActionflowConfig
 from lerobot_actionflow.policies.actionflow.modeling_actionflow import ActionflowPolicy
 from lerobot_actionflow.policies.euclidean_flow.configuration_euclidean_flow import EuclideanFlowConfig
 from lerobot_actionflow.policies.euclidean_flow.modeling_euclidean_flow import EuclideanFlowPolicy
-from lerobot_actionflow.evaluation.sweep import set_inference_steps
 from lerobot_actionflow.schema.tensors import pose_to_action
 
 POLICIES = {

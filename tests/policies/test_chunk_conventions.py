@@ -38,7 +38,10 @@ def _euclidean_flow():
         output_features={ACTION_KEY: PolicyFeature(FeatureType.ACTION, (ACTION_DIM,))},
     )  # fmt: skip
     gen = torch.Generator().manual_seed(1)
-    batch = {STATE_KEY: torch.randn(2, N_OBS, STATE_DIM, generator=gen), ENV_STATE_KEY: torch.randn(2, N_OBS, 9)}
+    batch = {
+        STATE_KEY: torch.randn(2, N_OBS, STATE_DIM, generator=gen),
+        ENV_STATE_KEY: torch.randn(2, N_OBS, 9, generator=gen),
+    }
     noise = torch.randn(2, HORIZON, ACTION_DIM, generator=torch.Generator().manual_seed(2))
     return EuclideanFlowPolicy(cfg).eval(), batch, noise, HORIZON - N_OBS + 1
 
@@ -47,7 +50,9 @@ def _euclidean_flow():
 def test_select_action_executes_the_chunk_from_the_current_step(make):
     policy, batch, noise, from_current_step = make()
     # select_action's history starts as the first observation repeated: give the chunk the same
-    history = {k: v[:, :1].expand(-1, N_OBS, *v.shape[2:]).clone() for k, v in batch.items() if k != ACTION_KEY}
+    history = {
+        k: v[:, :1].expand(-1, N_OBS, *v.shape[2:]).clone() for k, v in batch.items() if k != ACTION_KEY
+    }
     chunk = policy.predict_action_chunk(history, noise=noise)
     assert chunk.shape == (2, from_current_step, ACTION_DIM)
     policy.reset()
