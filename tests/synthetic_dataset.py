@@ -8,26 +8,10 @@ import numpy as np
 import torch
 
 from lerobot_actionflow import geometry as g
+from lerobot_actionflow.data.features import schema_features
 from lerobot_actionflow.geometry.se3 import compose, rp_to_pose7, rp_to_pose9
+from lerobot_actionflow.schema import ACTION_KEY, ENV_STATE_KEY, POSES_KEY, STATE_KEY
 from lerobot_actionflow.schema.tensors import pose_to_action
-
-
-def schema_features(num_objects: int, image_shape: tuple[int, int, int] | None = None) -> dict:
-    """LeRobotDataset feature spec of the schema (see ``lerobot_actionflow.schema``)."""
-    n = num_objects + 1
-    feats = {
-        "observation.poses": {"dtype": "float32", "shape": (n, 7), "names": None},
-        "observation.state": {"dtype": "float32", "shape": (11,), "names": None},
-        "observation.environment_state": {"dtype": "float32", "shape": (9 * num_objects,), "names": None},
-        "action": {"dtype": "float32", "shape": (10,), "names": None},
-    }
-    if image_shape is not None:
-        feats["observation.images.wrist"] = {
-            "dtype": "image",
-            "shape": image_shape,
-            "names": ["height", "width", "channels"],
-        }
-    return feats
 
 
 def make_reach_dataset(
@@ -38,7 +22,7 @@ def make_reach_dataset(
 
     gen = torch.Generator().manual_seed(seed)
     ds = LeRobotDataset.create(
-        repo_id=repo_id, fps=20, features=schema_features(1), root=root, use_videos=False
+        repo_id=repo_id, fps=20, features=schema_features(num_tokens=2), root=root, use_videos=False
     )
     for _ in range(episodes):
         r_o = g.exp(torch.tensor([0.0, 0.0, 1.0]) * (torch.rand(1, generator=gen) * 6.28 - 3.14))
@@ -54,10 +38,10 @@ def make_reach_dataset(
             s = min(1.0, (k + 1) / (length // 2))
             r_next, p_next = g.interpolate(r_start, r_goal, s), (1 - s) * p_start + s * p_goal
             frame = {
-                "observation.poses": rp_to_pose7(torch.stack((r_cur, r_o)), torch.stack((p_cur, p_o))),
-                "observation.state": torch.cat((rp_to_pose9(r_cur, p_cur), torch.tensor([0.04, -0.04]))),
-                "observation.environment_state": rp_to_pose9(r_o, p_o),
-                "action": pose_to_action(r_next, p_next, torch.tensor(1.0 if s >= 1.0 else -1.0)),
+                POSES_KEY: rp_to_pose7(torch.stack((r_cur, r_o)), torch.stack((p_cur, p_o))),
+                STATE_KEY: torch.cat((rp_to_pose9(r_cur, p_cur), torch.tensor([0.04, -0.04]))),
+                ENV_STATE_KEY: rp_to_pose9(r_o, p_o),
+                ACTION_KEY: pose_to_action(r_next, p_next, torch.tensor(1.0 if s >= 1.0 else -1.0)),
             }
             ds.add_frame({**{k2: v.numpy().astype(np.float32) for k2, v in frame.items()}, "task": "reach"})
             r_cur, p_cur = r_next, p_next
