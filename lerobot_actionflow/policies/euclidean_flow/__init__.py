@@ -6,6 +6,6 @@ LeRobot's naming convention: ``configuration_euclidean_flow.EuclideanFlowConfig`
 only registers the config; the modeling module is imported by LeRobot's factory when needed.
 """
 
-from .configuration_euclidean_flow import EuclideanFlowConfig
+from lerobot_actionflow.policies.euclidean_flow.configuration_euclidean_flow import EuclideanFlowConfig
 
 __all__ = ["EuclideanFlowConfig"]

@@ -21,8 +21,7 @@ from lerobot.policies.diffusion.modeling_diffusion import DiffusionConditionalUn
 from torch import nn
 
 from lerobot_actionflow.nn.dp_transformer import DPTransformer
-
-from .configuration_euclidean_flow import EuclideanFlowConfig
+from lerobot_actionflow.policies.euclidean_flow.configuration_euclidean_flow import EuclideanFlowConfig
 
 
 class FlowUnet1d(nn.Module):

@@ -17,7 +17,7 @@ from lerobot.processor import PolicyAction, PolicyProcessorPipeline
 from lerobot.processor.factory import make_default_policy_processor_steps, make_policy_processor_pipelines
 from lerobot.processor.normalize_processor import NormalizerProcessorStep
 
-from .configuration_euclidean_flow import EuclideanFlowConfig
+from lerobot_actionflow.policies.euclidean_flow.configuration_euclidean_flow import EuclideanFlowConfig
 
 
 def make_euclidean_flow_pre_post_processors(
