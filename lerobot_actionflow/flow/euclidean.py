@@ -26,18 +26,15 @@ def linear_path(a0: torch.Tensor, a1: torch.Tensor, t: torch.Tensor) -> tuple[to
     return tt * a1 + (1 - tt) * a0, a1 - a0
 
 
-def euler_sample(
-    velocity: Callable[[torch.Tensor, torch.Tensor], torch.Tensor], a0: torch.Tensor, times: torch.Tensor
-) -> torch.Tensor:
-    """Integrate ``da/dt = velocity(a, t)`` from ``times[0]`` to ``times[-1]``.
+#: ``velocity(a, k)``: the field at ``a (B, ...)`` and flow time ``times[k]`` of the grid being
+#: integrated, ``(B, ...)`` (the same step-indexed form as :data:`flow.se3.VelocityField`).
+VelocityField = Callable[[torch.Tensor, int], torch.Tensor]
 
-    Args:
-        velocity: ``(a (B, ...), t (B,)) -> (B, ...)``.
-        a0: ``(B, ...)`` initial noise.
-        times: ``(K + 1,)`` increasing grid.
-    """
+
+def euler_sample(velocity: VelocityField, a0: torch.Tensor, times: torch.Tensor) -> torch.Tensor:
+    """Integrate ``da/dt = v(a, t)`` over the increasing grid ``times`` ``(K + 1,)`` from the
+    noise ``a0 (B, ...)``."""
     a = a0
     for k in range(times.shape[0] - 1):
-        t = times[k].expand(a.shape[0])
-        a = a + velocity(a, t) * (times[k + 1] - times[k])
+        a = a + velocity(a, k) * (times[k + 1] - times[k])
     return a

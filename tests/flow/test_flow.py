@@ -47,7 +47,7 @@ def test_euclidean_flow_exact_velocity_reaches_data(k):
     a0, a1 = torch.randn(8, 16, 10, generator=gen), torch.randn(8, 16, 10, generator=gen)
     at, u = euclidean.linear_path(a0, a1, torch.zeros(8))
     assert torch.equal(at, a0) and torch.equal(u, a1 - a0)
-    out = euclidean.euler_sample(lambda a, t: a1 - a0, a0, schedules.exponential_times(k))
+    out = euclidean.euler_sample(lambda a, k: a1 - a0, a0, schedules.exponential_times(k))
     assert torch.allclose(out, a1, atol=1e-5)
 
 

@@ -214,7 +214,11 @@ class EuclideanFlowPolicy(PreTrainedPolicy):
             dtype=cond.dtype,
             device=cond.device,
         )
-        chunk = euler_sample(lambda a, t: self.velocity_net(a, t, cond), noise.to(cond.dtype), times)
+
+        def velocity(a: Tensor, k: int) -> Tensor:
+            return self.velocity_net(a, times[k].expand(a.shape[0]), cond)
+
+        chunk = euler_sample(velocity, noise.to(cond.dtype), times)
         return chunk.clamp(-1.0, 1.0) if self.config.clip_sample else chunk
 
     @torch.no_grad()
