@@ -5,10 +5,12 @@ Importing this package registers the task table (:mod:`.tasks`) and one Gymnasiu
 env config (``--env.type=actionflow``) lives in :mod:`.configuration`.
 
 Modules: ``tasks`` (registry), ``robomimic_tasks`` / ``mimicgen_tasks`` (the task table),
-``pose_env`` (the Gymnasium env), ``controller`` (absolute OSC_POSE), ``rotations`` (numpy
-helpers), ``scene_transform``, ``registration``, ``configuration``; robosuite environments
-written here: ``tabletop`` (their base), ``stack_three``, ``threading_task``,
-``three_piece_assembly``, ``coffee`` (``materials``: shared helpers).
+``pose_env`` (the Gymnasium env), ``controller`` (absolute OSC_POSE), ``scene_transform`` (its
+parameters) and ``scene_mover`` (applying it to a scene), ``arm_ik`` (inverse kinematics of the
+arm), ``rendering`` (offscreen camera images), ``registration``, ``configuration``; robosuite
+environments written here: ``tabletop`` (their base), ``stack_three``, ``threading_task``,
+``three_piece_assembly``, ``coffee`` (``materials``: shared helpers). Keys and shapes come from
+:mod:`lerobot_actionflow.schema`, rotations from :mod:`lerobot_actionflow.rotations`.
 """
 
 import importlib

@@ -36,6 +36,7 @@ from robosuite.models.objects import CompositeBodyObject, CylinderObject
 
 from lerobot_actionflow.envs.materials import box_composite, textured
 from lerobot_actionflow.envs.tabletop import Placement, TabletopTask
+from lerobot_actionflow.rotations import axis_angle_to_matrix, matrix_to_quaternion
 
 _D = math.radians
 HOLDER_INNER_RADIUS = 0.026
@@ -102,7 +103,7 @@ def _machine_body(name: str):
             f"cup{k}",
             ((HOLDER_OUTER_RADIUS - HOLDER_INNER_RADIUS) / 2, half_t, HOLDER_DEPTH / 2),
             (HOLDER_X + r_mid * math.cos(th), r_mid * math.sin(th), z0 + HOLDER_FLOOR_Z + HOLDER_DEPTH / 2),
-            (math.cos(th / 2), 0.0, 0.0, math.sin(th / 2)),
+            matrix_to_quaternion(axis_angle_to_matrix(np.array([0.0, 0.0, th]))).tolist(),
         )
     n = len(names)
     return box_composite(

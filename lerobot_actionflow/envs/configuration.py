@@ -5,15 +5,9 @@ imports :attr:`ActionFlowEnvConfig.package_name` if :attr:`gym_id` is not regist
 ``gym.make``s it once per sub-env (``SyncVectorEnv``, or ``AsyncVectorEnv`` with forkserver
 workers, which import this module again and so register the ids themselves).
 
-Raw observation keys and what ``preprocess_observation`` turns them into:
-
-| env key             | feature type | LeRobot key                       | shape          |
-| ------------------- | ------------ | --------------------------------- | -------------- |
-| ``poses``           | STATE        | ``observation.poses``             | (N, 7)         |
-| ``agent_pos``       | STATE        | ``observation.state``             | (11,)          |
-| ``environment_state`` | ENV        | ``observation.environment_state`` | (9 (N-1),)     |
-| ``pixels/<camera>`` | VISUAL       | ``observation.images.<camera>``   | (H, W, 3)      |
-| ``action``          | ACTION       | ``action``                        | (10,)          |
+Its ``features`` (keyed by env observation key, e.g. ``pixels/<camera>`` for an image) and
+``features_map`` (env key -> dataset / policy key, as LeRobot's ``preprocess_observation``
+renames them) are built from :mod:`lerobot_actionflow.schema`, which holds the keys and shapes.
 """
 
 from __future__ import annotations
@@ -22,12 +16,26 @@ from dataclasses import dataclass, field
 
 from lerobot.configs import FeatureType, PolicyFeature
 from lerobot.envs.configs import EnvConfig
-from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_IMAGES, OBS_STATE, OBS_STR
 
 import lerobot_actionflow.envs as _envs  # registers the gym ids (also in async workers)
 from lerobot_actionflow.envs.tasks import CONTROL_FREQ, get_task
+from lerobot_actionflow.schema import (
+    ACTION_KEY,
+    ENV_AGENT_POS,
+    ENV_POSES,
+    ENV_STATE,
+    ENV_TO_DATASET_KEY,
+    env_pixels_key,
+    feature_shapes,
+    image_key,
+)
 
-OBS_POSES = f"{OBS_STR}.poses"
+#: LeRobot feature type of each non-image env observation.
+_FEATURE_TYPES = {
+    ENV_POSES: FeatureType.STATE,
+    ENV_AGENT_POS: FeatureType.STATE,
+    ENV_STATE: FeatureType.ENV,
+}
 
 
 @EnvConfig.register_subclass("actionflow")
@@ -76,24 +84,18 @@ class ActionFlowEnvConfig(EnvConfig):
             )
         if self.episode_length is None:
             self.episode_length = spec.episode_length
-        n = spec.num_tokens
-        self.features = {
-            ACTION: PolicyFeature(type=FeatureType.ACTION, shape=(10,)),
-            "poses": PolicyFeature(type=FeatureType.STATE, shape=(n, 7)),
-            "agent_pos": PolicyFeature(type=FeatureType.STATE, shape=(11,)),
-            "environment_state": PolicyFeature(type=FeatureType.ENV, shape=(9 * (n - 1),)),
-        }
-        self.features_map = {
-            ACTION: ACTION,
-            "poses": OBS_POSES,
-            "agent_pos": OBS_STATE,
-            "environment_state": OBS_ENV_STATE,
-        }
+        shapes = feature_shapes(spec.num_tokens)
+        self.features = {ACTION_KEY: PolicyFeature(type=FeatureType.ACTION, shape=shapes[ACTION_KEY])}
+        self.features_map = {ACTION_KEY: ACTION_KEY}
+        for env_key, ftype in _FEATURE_TYPES.items():
+            key = ENV_TO_DATASET_KEY[env_key]
+            self.features[env_key] = PolicyFeature(type=ftype, shape=shapes[key])
+            self.features_map[env_key] = key
         for cam in self.camera_list:
-            self.features[f"pixels/{cam}"] = PolicyFeature(
+            self.features[env_pixels_key(cam)] = PolicyFeature(
                 type=FeatureType.VISUAL, shape=(self.observation_height, self.observation_width, 3)
             )
-            self.features_map[f"pixels/{cam}"] = f"{OBS_IMAGES}.{cam}"
+            self.features_map[env_pixels_key(cam)] = image_key(cam)
         self.scene_transform_kwargs()  # validate early
 
     @property

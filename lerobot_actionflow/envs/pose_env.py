@@ -1,21 +1,24 @@
 """The pose-token Gymnasium env: one robosuite task, observed as entity poses, driven by
 absolute end-effector pose targets.
 
-Observation (a dict; every pose in the world frame, the frame of robosuite's observations):
+Keys, layouts and shapes are the schema's (:mod:`lerobot_actionflow.schema`, for a task with
+``N`` tokens); this module fills them. Every pose is in the world frame, the frame of
+robosuite's observations.
 
-- ``poses`` float32 ``(N, 7)``: ``[x, y, z, qw, qx, qy, qz]`` per entity, row 0 the
-  end-effector (robosuite's grip site, the point the arm controller tracks), rows 1.. the
-  task's entities in :attr:`TaskSpec.entities` order. Quaternions are scalar-first with
-  ``qw >= 0``. They are read from MuJoCo, which is scalar-first already, so no robosuite
+- ``ENV_POSES``, pose7 rows: row 0 the end-effector (robosuite's grip site, the point the arm
+  controller tracks), rows 1.. the task's entities in :attr:`TaskSpec.entities` order. World
+  positions and rotation matrices are read from MuJoCo (``xpos``/``xmat`` of a body, site or
+  geom; a ``pose_fn`` entity returns a position and a scalar-first quaternion), then all ``N``
+  rotations become quaternions in one batched call, scalar-first with ``qw >= 0``. No robosuite
   scalar-last quaternion is involved.
-- ``agent_pos`` float32 ``(11,)``: EEF position (3), EEF rotation as 6D (first two columns of
-  its rotation matrix, 6), gripper finger joint positions (2).
-- ``environment_state`` float32 ``(9 (N-1),)``: per entity ``[pos (3), rot6d (6)]``.
-- ``pixels`` (only with ``cameras``): ``{camera: uint8 (H, W, 3)}``, cameras ``"wrist"``
-  (robosuite's ``robot0_eye_in_hand``), ``"agentview"`` or any other camera of the model.
+- ``ENV_AGENT_POS``: the EEF as pose9, then the gripper's two finger joint positions.
+- ``ENV_STATE``: rows 1.. as pose9, concatenated.
+- ``ENV_PIXELS`` (only with ``cameras``): ``{camera: uint8 (H, W, 3)}``, cameras ``"wrist"``
+  (robosuite's ``robot0_eye_in_hand``), ``"agentview"`` or any other camera of the model
+  (:mod:`lerobot_actionflow.envs.rendering`; a frame costs more than a physics step without a GPU).
 
-Action float32 ``(10,)``: ``[x, y, z, rot6d (6), gripper]``, the absolute EEF target in the
-world frame; gripper in ``[-1, 1]`` (-1 open, +1 closed; values outside are clipped). The
+Action ``(ACTION_DIM,)``: ``[x, y, z, rot6d, gripper]``, the absolute EEF target pose9 in the
+world frame, gripper in ``[-1, 1]`` (-1 open, +1 closed; values outside are clipped). The
 position is clipped to the task's workspace box (:attr:`TaskSpec.workspace_low` /
 ``workspace_high``). A wrong shape, a NaN/inf entry or a degenerate 6D rotation raises
 ``ValueError``. The target goes to robosuite's OSC_POSE controller in absolute world mode
@@ -25,9 +28,9 @@ Reward is 1.0 on a success step, else 0.0; ``info["is_success"]`` carries the ta
 the episode terminates on success (``terminate_on_success``) and is truncated by Gymnasium's
 ``TimeLimit`` at the task's episode length when made through ``gym.make``.
 
-Rendering uses ``mujoco.Renderer`` on the env's own model and data (robosuite's renderer is
-off): visual geoms only (group 1), no multisample anti-aliasing. Without a GPU (software EGL)
-a frame costs tens of milliseconds, more than a physics step: request images only when needed.
+Scene transform: at each reset, after the task has placed its objects, a drawn planar motion
+moves the layout (:mod:`lerobot_actionflow.envs.scene_mover`) and, with ``move_robot``, the
+arm's end-effector by inverse kinematics (:mod:`lerobot_actionflow.envs.arm_ik`).
 
 Seeding: ``reset(seed=s)`` re-seeds, in place, the one numpy generator through which robosuite
 samples robot initialisation noise and object placements, and the generator of the scene
@@ -37,38 +40,54 @@ episode, in any env instance (what robosuite draws at construction is seeded too
 
 from __future__ import annotations
 
-import atexit
 import math
-import weakref
 from typing import Any, ClassVar
 
 import gymnasium as gym
 import mujoco
 import numpy as np
 
-from lerobot_actionflow.envs import rotations as rot
+from lerobot_actionflow.envs.arm_ik import ArmIK
 from lerobot_actionflow.envs.controller import absolute_pose_controller_config
-from lerobot_actionflow.envs.scene_transform import SceneTransform, planar_transform_points, yaw_quat
+from lerobot_actionflow.envs.rendering import CameraRenderer
+from lerobot_actionflow.envs.scene_mover import SceneMover
+from lerobot_actionflow.envs.scene_transform import SceneTransform
 from lerobot_actionflow.envs.tasks import CONTROL_FREQ, TaskSpec, get_task
+from lerobot_actionflow.rotations import (
+    compose,
+    inverse,
+    matrix_to_axis_angle,
+    matrix_to_quaternion,
+    quaternion_to_matrix,
+    rotation_6d_to_matrix,
+    rp_to_pose7,
+    rp_to_pose9,
+)
+from lerobot_actionflow.schema import (
+    ACTION_DIM,
+    ACTION_GRIPPER_INDEX,
+    ENV_AGENT_POS,
+    ENV_PIXELS,
+    ENV_POSES,
+    ENV_STATE,
+    GRIPPER_QPOS_DIM,
+    POSE7_DIM,
+    POSE9_DIM,
+    STATE_DIM,
+    env_state_dim,
+)
 
-#: Our camera names -> robosuite's.
-CAMERA_ALIASES = {"wrist": "robot0_eye_in_hand", "agentview": "agentview"}
-
-ACTION_DIM = 10
-AGENT_POS_DIM = 11
-#: Indices of the 6D rotation (first two columns) in a row-major flattened 3x3 matrix.
-_ROT6D_FROM_FLAT = np.array([0, 3, 6, 1, 4, 7])
-
-#: Envs holding renderers, so that their GL contexts are released before MuJoCo's EGL display
-#: is terminated at exit (that atexit hook is registered when MuJoCo's GL module is imported, by
-#: the first renderer; ours is registered after it, so it runs first).
-_LIVE_ENVS: weakref.WeakSet = weakref.WeakSet()
-_EXIT_HOOK = []
-
-
-def _close_renderers_at_exit() -> None:
-    for env in list(_LIVE_ENVS):
-        env.close_renderers()
+#: MuJoCo data arrays (world position, row-major rotation matrix) of each kind of token element.
+_FRAME_ARRAYS = {
+    "body": ("xpos", "xmat"),
+    "site": ("site_xpos", "site_xmat"),
+    "geom": ("geom_xpos", "geom_xmat"),
+}
+_OBJ_TYPES = {
+    "body": mujoco.mjtObj.mjOBJ_BODY,
+    "site": mujoco.mjtObj.mjOBJ_SITE,
+    "geom": mujoco.mjtObj.mjOBJ_GEOM,
+}
 
 
 class PoseTokenEnv(gym.Env):
@@ -120,53 +139,42 @@ class PoseTokenEnv(gym.Env):
         self._ws_high = np.asarray(self.spec_task.workspace_high, dtype=np.float64)
 
         self._env = make_robosuite_env(self.spec_task)
-        self._sim = self._env.sim
-        self._model: mujoco.MjModel = self._sim.model._model
-        self._data: mujoco.MjData = self._sim.data._data
+        self._model: mujoco.MjModel = self._env.sim.model._model
+        self._data: mujoco.MjData = self._env.sim.data._data
         self._setup_references()
-
-        self._renderers: dict[tuple[int, int], mujoco.Renderer] = {}
-        # No multisample anti-aliasing offscreen: it doubles the cost of a frame on a CPU (software
-        # EGL) renderer for a barely visible difference at these sizes.
-        self._model.vis.quality.offsamples = 0
-        self._scene_option = mujoco.MjvOption()
-        self._scene_option.geomgroup[0] = 0  # robosuite: group 0 collision, group 1 visual
+        table_half = np.asarray(getattr(self._env, "table_full_size", (0.8, 0.8)), dtype=np.float64)[:2] / 2
+        table_centre = np.asarray(getattr(self._env, "table_offset", (0.0, 0.0)), dtype=np.float64)[:2]
+        self._scene = SceneMover(self._model, self._data, self.spec_task, table_centre, table_half)
+        self._arm_ik = ArmIK(self._model, self._data, self._eef_site, self._env.robots[0]._ref_joint_indexes)
+        self._renderer = CameraRenderer(self._model, self._data, self.task)
         for cam in (*self.cameras, self.render_camera):
-            self._camera_id(cam)  # fail early on an unknown camera
+            self._renderer.camera_id(cam)  # fail early on an unknown camera
 
         n = self.spec_task.num_tokens
         obs_spaces: dict[str, gym.Space] = {
-            "poses": gym.spaces.Box(-np.inf, np.inf, (n, 7), np.float32),
-            "agent_pos": gym.spaces.Box(-np.inf, np.inf, (AGENT_POS_DIM,), np.float32),
-            "environment_state": gym.spaces.Box(-np.inf, np.inf, (9 * (n - 1),), np.float32),
+            ENV_POSES: gym.spaces.Box(-np.inf, np.inf, (n, POSE7_DIM), np.float32),
+            ENV_AGENT_POS: gym.spaces.Box(-np.inf, np.inf, (STATE_DIM,), np.float32),
+            ENV_STATE: gym.spaces.Box(-np.inf, np.inf, (env_state_dim(n),), np.float32),
         }
         if self.cameras:
-            obs_spaces["pixels"] = gym.spaces.Dict(
+            obs_spaces[ENV_PIXELS] = gym.spaces.Dict(
                 {c: gym.spaces.Box(0, 255, (*self.image_size, 3), np.uint8) for c in self.cameras}
             )
         self.observation_space = gym.spaces.Dict(obs_spaces)
-        low = np.concatenate([self._ws_low, -np.ones(7)]).astype(np.float32)
-        high = np.concatenate([self._ws_high, np.ones(7)]).astype(np.float32)
+        low = np.concatenate([self._ws_low, -np.ones(ACTION_DIM - 3)]).astype(np.float32)
+        high = np.concatenate([self._ws_high, np.ones(ACTION_DIM - 3)]).astype(np.float32)
         self.action_space = gym.spaces.Box(low, high, (ACTION_DIM,), np.float32)
         self._last_success = False
 
-    # ------------------------------------------------------------------ set-up
     def _setup_references(self) -> None:
+        """Ids of the EEF site, the gripper joints and every token's MuJoCo element."""
         robot = self._env.robots[0]
-        self._robot = robot
         self._eef_site = int(robot.eef_site_id["right"])
         self._gripper_qpos = np.asarray(robot._ref_gripper_joint_pos_indexes["right"], dtype=np.int64)
-        if self._gripper_qpos.shape != (2,):
-            raise RuntimeError(f"expected 2 gripper joints, got {self._gripper_qpos.shape}")
-        self._arm_qpos = np.asarray(robot._ref_joint_pos_indexes, dtype=np.int64)
-        self._arm_dof = np.asarray(robot._ref_joint_vel_indexes, dtype=np.int64)
+        if self._gripper_qpos.shape != (GRIPPER_QPOS_DIM,):
+            raise RuntimeError(f"expected {GRIPPER_QPOS_DIM} gripper joints, got {self._gripper_qpos.shape}")
         # Token rows grouped by the kind of MuJoCo element they read (vectorised reads).
-        kinds = {
-            "body": mujoco.mjtObj.mjOBJ_BODY,
-            "site": mujoco.mjtObj.mjOBJ_SITE,
-            "geom": mujoco.mjtObj.mjOBJ_GEOM,
-        }
-        rows: dict[str, list[tuple[int, int]]] = {k: [] for k in kinds}
+        rows: dict[str, list[tuple[int, int]]] = {k: [] for k in _OBJ_TYPES}
         self._virtual = []
         self._entity_body: dict[str, int] = {}
         for i, ent in enumerate(self.spec_task.entities):
@@ -174,42 +182,17 @@ class PoseTokenEnv(gym.Env):
                 self._virtual.append((i + 1, ent.resolve_pose_fn()))
                 continue
             ref = getattr(ent, ent.kind)
-            eid = mujoco.mj_name2id(self._model, kinds[ent.kind], ref)
+            eid = mujoco.mj_name2id(self._model, _OBJ_TYPES[ent.kind], ref)
             if eid < 0:
                 raise RuntimeError(f"task {self.task}: no {ent.kind} {ref!r} for entity {ent.name!r}")
             rows[ent.kind].append((i + 1, eid))
-            body = {"body": eid, "site": None, "geom": None}[ent.kind]
-            if body is None:
-                body = (self._model.site_bodyid if ent.kind == "site" else self._model.geom_bodyid)[eid]
-            self._entity_body[ent.name] = int(body)
+            carrier = {"site": self._model.site_bodyid, "geom": self._model.geom_bodyid}.get(ent.kind)
+            self._entity_body[ent.name] = int(eid if carrier is None else carrier[eid])  # its body
         self._rows = {
             k: (np.array([r for r, _ in v], dtype=np.int64), np.array([e for _, e in v], dtype=np.int64))
             for k, v in rows.items()
             if v
         }
-        # Free joints of everything but the robot: what a scene transform moves.
-        self._free_qpos = [
-            int(self._model.jnt_qposadr[j])
-            for j in range(self._model.njnt)
-            if self._model.jnt_type[j] == mujoco.mjtJoint.mjJNT_FREE
-        ]
-        self._fixtures = []
-        for name in self.spec_task.fixtures:
-            bid = mujoco.mj_name2id(self._model, mujoco.mjtObj.mjOBJ_BODY, name)
-            if bid < 0:
-                raise RuntimeError(f"task {self.task}: no fixture body {name!r}")
-            parent = self._model.body_parentid[bid]
-            self._fixtures.append(
-                (bid, parent, self._model.body_pos[bid].copy(), self._model.body_quat[bid].copy())
-            )
-
-    def _camera_id(self, camera: str) -> int:
-        name = CAMERA_ALIASES.get(camera, camera)
-        cid = mujoco.mj_name2id(self._model, mujoco.mjtObj.mjOBJ_CAMERA, name)
-        if cid < 0:
-            known = [self._model.camera(i).name for i in range(self._model.ncam)]
-            raise ValueError(f"task {self.task} has no camera {camera!r}; known: {known} and 'wrist'")
-        return cid
 
     # ------------------------------------------------------------------ gym API
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
@@ -217,10 +200,15 @@ class PoseTokenEnv(gym.Env):
         if seed is not None:
             # robosuite's samplers and robot noise all hold a reference to env.rng: reseed it in place.
             self._env.rng.bit_generator.state = np.random.default_rng(seed).bit_generator.state
-        self._restore_fixtures()
+        self._scene.restore_fixtures()
         self._env.reset()
         if self.scene_transform is not None and not self.scene_transform.is_identity:
-            self._apply_scene_transform(*self._sample_transform_on_table())
+            _, p_tok = self._token_frames()
+            r, p = self._scene.sample(self.scene_transform, self.np_random, p_tok[1:])
+            eef_p, eef_r = self.eef_pose()
+            self._scene.move(r, p)
+            if self.scene_transform.move_robot:
+                self._arm_ik.solve(*compose(r, p, eef_r, eef_p))
         self._last_success = bool(self._env._check_success())
         return self._observe(), {"is_success": self._last_success}
 
@@ -238,11 +226,13 @@ class PoseTokenEnv(gym.Env):
             return None
         return self.render_camera_image(self.render_camera, *self.render_size)
 
+    def render_camera_image(self, camera: str, height: int, width: int) -> np.ndarray:
+        """RGB ``uint8 (height, width, 3)`` from a camera (alias or robosuite name)."""
+        return self._renderer.render(camera, height, width)
+
     def close_renderers(self) -> None:
         """Release the offscreen GL contexts (made again on the next render)."""
-        for r in self._renderers.values():
-            r.close()
-        self._renderers.clear()
+        self._renderer.close()
 
     def close(self) -> None:
         self.close_renderers()
@@ -252,7 +242,7 @@ class PoseTokenEnv(gym.Env):
 
     # ------------------------------------------------------------------ actions
     def to_robosuite_action(self, action) -> np.ndarray:
-        """Validate a 10-D action and convert it to robosuite's ``[pos, axis-angle, gripper]``.
+        """Validate an action and convert it to robosuite's ``[pos, axis-angle, gripper]`` ``(7,)``.
 
         Raises:
             ValueError: wrong shape, a non-finite entry, or a degenerate 6D rotation.
@@ -270,71 +260,43 @@ class PoseTokenEnv(gym.Env):
             raise ValueError(f"action has non-finite (NaN/inf) entries at indices {bad}: {a.tolist()}")
         out = np.empty(7)
         out[:3] = np.minimum(np.maximum(a[:3], self._ws_low), self._ws_high)
-        out[3:6] = rot.matrix_to_rotvec(rot.rot6d_to_matrix(a[3:9]))
-        out[6] = min(max(a[9], -1.0), 1.0)
+        out[3:6] = matrix_to_axis_angle(rotation_6d_to_matrix(a[3:POSE9_DIM]))
+        out[6] = min(max(a[ACTION_GRIPPER_INDEX], -1.0), 1.0)
         return out
 
     # ------------------------------------------------------------------ observations
     def eef_pose(self) -> tuple[np.ndarray, np.ndarray]:
-        """World position ``(3,)`` and rotation matrix ``(3, 3)`` of the end-effector."""
-        return self._data.site_xpos[self._eef_site].copy(), self._data.site_xmat[self._eef_site].reshape(3, 3)
+        """World position ``(3,)`` and rotation matrix ``(3, 3)`` of the end-effector (copies)."""
+        d = self._data
+        return d.site_xpos[self._eef_site].copy(), d.site_xmat[self._eef_site].reshape(3, 3).copy()
 
-    def _observe(self) -> dict[str, Any]:
+    def _token_frames(self) -> tuple[np.ndarray, np.ndarray]:
+        """World rotations ``(N, 3, 3)`` and positions ``(N, 3)`` of the tokens, row 0 the EEF."""
         d = self._data
         n = self.spec_task.num_tokens
-        poses = np.empty((n, 7), dtype=np.float64)
-        flat = np.empty((n, 9), dtype=np.float64)  # row-major rotation matrices
-        poses[0, :3] = d.site_xpos[self._eef_site]
-        flat[0] = d.site_xmat[self._eef_site]
-        mujoco.mju_mat2Quat(poses[0, 3:], flat[0])
-        if "body" in self._rows:
-            rows, ids = self._rows["body"]
-            poses[rows, :3] = d.xpos[ids]
-            poses[rows, 3:] = d.xquat[ids]
-            flat[rows] = d.xmat[ids]
-        for kind, pos_arr, mat_arr in (
-            ("site", d.site_xpos, d.site_xmat),
-            ("geom", d.geom_xpos, d.geom_xmat),
-        ):
-            if kind in self._rows:
-                rows, ids = self._rows[kind]
-                poses[rows, :3] = pos_arr[ids]
-                flat[rows] = mat_arr[ids]
-                for r in rows:
-                    mujoco.mju_mat2Quat(poses[r, 3:], flat[r])
-        for row, fn in self._virtual:
-            pos, quat = fn(self._env)
-            poses[row, :3] = pos
-            poses[row, 3:] = np.asarray(quat) / np.linalg.norm(quat)
-            flat[row] = rot.quat_to_matrix(poses[row, 3:]).reshape(9)
-        neg = poses[:, 3] < 0
-        if neg.any():
-            poses[neg, 3:] *= -1.0
-        rot6d = flat[:, _ROT6D_FROM_FLAT]
-        agent_pos = np.concatenate([poses[0, :3], rot6d[0], d.qpos[self._gripper_qpos]])
-        env_state = np.concatenate([poses[1:, :3], rot6d[1:]], axis=-1).reshape(-1)
+        r, p = np.empty((n, 9)), np.empty((n, 3))
+        r[0], p[0] = d.site_xmat[self._eef_site], d.site_xpos[self._eef_site]
+        for kind, (rows, ids) in self._rows.items():
+            pos_name, mat_name = _FRAME_ARRAYS[kind]
+            p[rows], r[rows] = getattr(d, pos_name)[ids], getattr(d, mat_name)[ids]
+        if self._virtual:
+            rows = [row for row, _ in self._virtual]
+            pos_quat = [fn(self._env) for _, fn in self._virtual]
+            p[rows] = [pos for pos, _ in pos_quat]
+            r[rows] = quaternion_to_matrix(np.array([q for _, q in pos_quat])).reshape(-1, 9)
+        return r.reshape(n, 3, 3), p
+
+    def _observe(self) -> dict[str, Any]:
+        r, p = self._token_frames()
+        pose9 = rp_to_pose9(r, p)
         obs: dict[str, Any] = {
-            "poses": poses.astype(np.float32),
-            "agent_pos": agent_pos.astype(np.float32),
-            "environment_state": env_state.astype(np.float32),
+            ENV_POSES: rp_to_pose7(r, p).astype(np.float32),
+            ENV_AGENT_POS: np.concatenate([pose9[0], self._data.qpos[self._gripper_qpos]]).astype(np.float32),
+            ENV_STATE: pose9[1:].reshape(-1).astype(np.float32),
         }
         if self.cameras:
-            obs["pixels"] = {c: self.render_camera_image(c, *self.image_size) for c in self.cameras}
+            obs[ENV_PIXELS] = {c: self.render_camera_image(c, *self.image_size) for c in self.cameras}
         return obs
-
-    def render_camera_image(self, camera: str, height: int, width: int) -> np.ndarray:
-        """RGB ``uint8 (height, width, 3)`` from a camera (alias or robosuite name)."""
-        key = (height, width)
-        renderer = self._renderers.get(key)
-        if renderer is None:
-            vis = self._model.vis.global_
-            vis.offwidth, vis.offheight = max(vis.offwidth, width), max(vis.offheight, height)
-            renderer = self._renderers[key] = mujoco.Renderer(self._model, height, width)
-            _LIVE_ENVS.add(self)
-            if not _EXIT_HOOK:
-                _EXIT_HOOK.append(atexit.register(_close_renderers_at_exit))
-        renderer.update_scene(self._data, camera=self._camera_id(camera), scene_option=self._scene_option)
-        return renderer.render()
 
     # ------------------------------------------------------------------ state access
     @property
@@ -365,91 +327,23 @@ class PoseTokenEnv(gym.Env):
         mujoco.mj_forward(m, d)
 
     def set_entity_pose(self, name: str, pos, quat_wxyz) -> None:
-        """Move a token (by name) to a world pose by moving the free body that carries it."""
+        """Move a token (by name) to a world pose by moving the free body that carries it.
+
+        With the body's pose ``B``, the token's ``T`` and the fixed offset ``O = B^-1 T``, the
+        body goes to ``B' = T' O^-1`` for the requested token pose ``T'``."""
         if name not in self._entity_body:
             raise ValueError(f"{name!r} is not a MuJoCo entity of {self.task}")
         row = 1 + [e.name for e in self.spec_task.entities].index(name)
         bid = self._entity_body[name]
-        poses = self._observe()["poses"].astype(np.float64)
+        r_tok, p_tok = self._token_frames()
         d = self._data
-        # token = body * offset  =>  body' = token' * offset^-1
-        r_body = d.xmat[bid].reshape(3, 3)
-        r_tok = rot.quat_to_matrix(poses[row, 3:])
-        off_r = r_body.T @ r_tok
-        off_p = r_body.T @ (poses[row, :3] - d.xpos[bid])
-        r_new = rot.quat_to_matrix(np.asarray(quat_wxyz, dtype=np.float64)) @ off_r.T
-        self.set_body_pose(int(bid), np.asarray(pos) - r_new @ off_p, rot.matrix_to_quat(r_new))
-
-    # ------------------------------------------------------------------ scene transform
-    def _restore_fixtures(self) -> None:
-        for bid, _, pos, quat in self._fixtures:
-            self._model.body_pos[bid] = pos
-            self._model.body_quat[bid] = quat
-
-    def _sample_transform_on_table(self, tries: int = 100) -> tuple[float, float, float]:
-        """Draw ``(yaw, tx, ty)`` that keeps every entity token over the table (2 cm margin).
-
-        A transform with ranges is redrawn (up to ``tries`` times) when it would move an entity
-        off the table, so the layout is conditioned on staying on it; a constant transform
-        that does raises ``ValueError`` naming the entity.
-        """
-        half = np.asarray(getattr(self._env, "table_full_size", (0.8, 0.8)), dtype=np.float64)[:2] / 2 - 0.02
-        centre = np.asarray(getattr(self._env, "table_offset", (0.0, 0.0)), dtype=np.float64)[:2]
-        points = self._observe()["poses"][1:, :3].astype(np.float64)
-        names = [e.name for e in self.spec_task.entities]
-        for _ in range(tries):
-            g = self.scene_transform.sample(self.np_random)
-            xy = planar_transform_points(points, g[0], (g[1], g[2]), self.spec_task.pivot_xy)[:, :2]
-            off = np.flatnonzero((np.abs(xy - centre) > half).any(axis=1))
-            if not len(off):
-                return g
-        raise ValueError(
-            f"scene transform {self.scene_transform} moves {[names[i] for i in off]} of {self.task} off the "
-            "table; use a smaller shift or yaw range for this task/variant"
+        off = compose(*inverse(d.xmat[bid].reshape(3, 3), d.xpos[bid]), r_tok[row], p_tok[row])
+        target = (
+            quaternion_to_matrix(np.asarray(quat_wxyz, dtype=np.float64)),
+            np.asarray(pos, dtype=np.float64),
         )
-
-    def _apply_scene_transform(self, yaw: float, tx: float, ty: float) -> None:
-        m, d = self._model, self._data
-        pivot, shift, qz = self.spec_task.pivot_xy, (tx, ty), yaw_quat(yaw)
-        eef_pos, eef_mat = self.eef_pose()
-        for adr in self._free_qpos:
-            d.qpos[adr : adr + 3] = planar_transform_points(d.qpos[adr : adr + 3], yaw, shift, pivot)
-            q = np.empty(4)
-            mujoco.mju_mulQuat(q, qz, d.qpos[adr + 3 : adr + 7].copy())
-            d.qpos[adr + 3 : adr + 7] = q
-        for bid, parent, pos, quat in self._fixtures:
-            parent_pos = d.xpos[parent]
-            if not np.allclose(d.xquat[parent], [1, 0, 0, 0]):
-                raise RuntimeError("scene transform: fixtures must have an unrotated parent body")
-            m.body_pos[bid] = planar_transform_points(parent_pos + pos, yaw, shift, pivot) - parent_pos
-            q = np.empty(4)
-            mujoco.mju_mulQuat(q, qz, quat)
-            m.body_quat[bid] = q
-        mujoco.mj_forward(m, d)
-        if self.scene_transform.move_robot:
-            target_pos = planar_transform_points(eef_pos, yaw, shift, pivot)
-            self._solve_arm_ik(target_pos, rot.yaw_matrix(yaw) @ eef_mat)
-
-    def _solve_arm_ik(self, target_pos: np.ndarray, target_mat: np.ndarray, iters: int = 200) -> None:
-        """Damped least squares on the arm joints (kinematics only) to put the EEF at a pose."""
-        m, d = self._model, self._data
-        jacp, jacr = np.empty((3, m.nv)), np.empty((3, m.nv))
-        lo, hi = m.jnt_range[self._robot._ref_joint_indexes].T
-        for _ in range(iters):
-            mujoco.mj_kinematics(m, d)
-            mujoco.mj_comPos(m, d)
-            pos, mat = self.eef_pose()
-            err = np.concatenate([target_pos - pos, rot.matrix_to_rotvec(target_mat @ mat.T)])
-            if np.linalg.norm(err[:3]) < 1e-4 and np.linalg.norm(err[3:]) < 1e-3:
-                break
-            mujoco.mj_jacSite(m, d, jacp, jacr, self._eef_site)
-            jac = np.concatenate([jacp[:, self._arm_dof], jacr[:, self._arm_dof]])
-            dq = jac.T @ np.linalg.solve(jac @ jac.T + 1e-4 * np.eye(6), err)
-            d.qpos[self._arm_qpos] = np.clip(d.qpos[self._arm_qpos] + dq, lo, hi)
-        else:
-            raise RuntimeError(f"scene transform: IK did not reach the moved EEF pose (error {err})")
-        d.qvel[self._arm_dof] = 0.0
-        mujoco.mj_forward(m, d)
+        r_new, p_new = compose(*target, *inverse(*off))
+        self.set_body_pose(int(bid), p_new, matrix_to_quaternion(r_new))
 
 
 def make_robosuite_env(spec: TaskSpec, **overrides):
@@ -457,8 +351,9 @@ def make_robosuite_env(spec: TaskSpec, **overrides):
     world OSC_POSE, no robosuite rendering or camera observations, soft resets, no horizon.
 
     robosuite's generator is seeded (0) at construction because it also draws parts of the model
-    when it is built (Lift's cube size, 0.040-0.044 m): unseeded, every env instance (every
-    process, every eval worker) had its own, so one episode seed gave different scenes."""
+    when it is built (Lift's cube size, 0.040-0.044 m); otherwise every env instance (every
+    process, every eval worker) would draw its own, and one episode seed would give different
+    scenes."""
     kwargs = dict(
         robots="Panda",
         controller_configs=absolute_pose_controller_config(),

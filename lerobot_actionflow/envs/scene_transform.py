@@ -21,6 +21,9 @@ does (the layout distribution is conditioned on it), a constant one that does no
 ``ValueError``. Layouts within 0.28 m of the pivot (all D0/D1 variants and the robomimic tasks)
 never leave the 0.8 m table; D2 variants may need smaller shifts. Tasks whose goal is a fixed
 part of the arena (Can's bins) do not support a transform.
+
+This module holds the transform's parameters only (importing it is cheap);
+:mod:`lerobot_actionflow.envs.scene_mover` applies it to a MuJoCo scene.
 """
 
 from __future__ import annotations
@@ -94,21 +97,3 @@ class SceneTransform:
             lo, hi = _as_range(getattr(self, name), name)
             out.append(lo if lo == hi else float(rng.uniform(lo, hi)))
         return out[0], out[1], out[2]
-
-
-def planar_transform_points(
-    points: np.ndarray, yaw: float, shift_xy: tuple[float, float], pivot_xy: tuple[float, float]
-) -> np.ndarray:
-    """Apply ``p' = Rz(yaw)(p - c) + c + t`` to world points ``(..., 3)``."""
-    c, s = math.cos(yaw), math.sin(yaw)
-    p = np.array(points, dtype=np.float64, copy=True)
-    dx = p[..., 0] - pivot_xy[0]
-    dy = p[..., 1] - pivot_xy[1]
-    p[..., 0] = c * dx - s * dy + pivot_xy[0] + shift_xy[0]
-    p[..., 1] = s * dx + c * dy + pivot_xy[1] + shift_xy[1]
-    return p
-
-
-def yaw_quat(yaw: float) -> np.ndarray:
-    """Scalar-first quaternion of a rotation by ``yaw`` about z."""
-    return np.array([math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)])

@@ -34,6 +34,7 @@ from robosuite.models.objects import CompositeObject
 
 from lerobot_actionflow.envs.materials import box_composite, textured
 from lerobot_actionflow.envs.tabletop import Placement, TabletopTask
+from lerobot_actionflow.rotations import axis_angle_to_matrix, matrix_to_quaternion
 
 NEEDLE_TIP_X = 0.075
 RING_INNER_RADIUS = 0.012
@@ -71,10 +72,9 @@ THREADING_VARIANTS: dict[str, dict[str, Placement]] = {
 
 
 def _about(axis: str, angle: float) -> list[float]:
-    """Scalar-first quaternion of a rotation about a coordinate axis."""
-    q = [math.cos(angle / 2), 0.0, 0.0, 0.0]
-    q["xyz".index(axis) + 1] = math.sin(angle / 2)
-    return q
+    """Scalar-first quaternion of a rotation by ``angle`` about the coordinate axis ``"x"``,
+    ``"y"`` or ``"z"``."""
+    return matrix_to_quaternion(axis_angle_to_matrix(angle * np.eye(3)["xyz".index(axis)])).tolist()
 
 
 def make_needle(name: str = "needle") -> CompositeObject:

@@ -6,7 +6,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from lerobot_actionflow.envs import rotations as rot
+from lerobot_actionflow.rotations import matrix_to_quaternion, quaternion_to_matrix
 
 Z = np.array([0.0, 0.0, 1.0])
 IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
@@ -61,7 +61,7 @@ def tool_hang(env) -> None:
     base = d.geom_xpos[rs.obj_geom_id["stand_base"]].copy()
     walls = np.mean([d.geom_xpos[rs.obj_geom_id[f"stand_wall_{i}"]] for i in range(4)], axis=0)
     tip_target = np.array([walls[0], walls[1], base[2] + 0.01])
-    env.set_body_pose("frame_root", tip_target - r_frame @ lt, rot.matrix_to_quat(r_frame))
+    env.set_body_pose("frame_root", tip_target - r_frame @ lt, matrix_to_quaternion(r_frame))
 
     hang = d.site_xpos[rs.obj_site_id["frame_hang_site"]].copy()
     inter = d.site_xpos[rs.obj_site_id["frame_intersection_site"]].copy()
@@ -71,15 +71,15 @@ def tool_hang(env) -> None:
     lc = _body_local(env, "tool_root", d.site_xpos[rs.obj_site_id["tool_hole1_center"]].copy())
     r_tool = _frame(hook, -Z) @ _frame(hole_axis, -lc).T
     centre = hang + 0.5 * (inter - hang) - 0.0063 * Z  # the hole's top rests on the hook
-    env.set_body_pose("tool_root", centre - r_tool @ lc, rot.matrix_to_quat(r_tool))
+    env.set_body_pose("tool_root", centre - r_tool @ lc, matrix_to_quaternion(r_tool))
 
 
 def threading(env, along_axis: float = 0.0) -> None:
     """Needle aligned with the ring's axis, its tip ``along_axis`` metres past the ring centre."""
     ring = env.get_observation()["poses"][2].astype(np.float64)
-    r = rot.quat_to_matrix(ring[3:])
+    r = quaternion_to_matrix(ring[3:])
     tip_local = np.array([0.075, 0.0, 0.0])
-    env.set_entity_pose("needle", ring[:3] + along_axis * r[:, 0] - r @ tip_local, rot.matrix_to_quat(r))
+    env.set_entity_pose("needle", ring[:3] + along_axis * r[:, 0] - r @ tip_local, matrix_to_quaternion(r))
 
 
 def three_piece_assembly(env) -> None:

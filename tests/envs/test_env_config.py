@@ -10,6 +10,7 @@ from lerobot.configs import FeatureType
 from lerobot.envs.configs import EnvConfig
 from lerobot.envs.factory import make_env, make_env_config
 from lerobot.envs.utils import env_to_policy_features, preprocess_observation
+from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_IMAGES, OBS_STATE, OBS_STR
 
 from lerobot_actionflow.envs.configuration import ActionFlowEnvConfig
 from lerobot_actionflow.registry import PLUGIN_MODULES
@@ -33,6 +34,18 @@ def test_policy_features_follow_the_schema():
     assert feats["observation.environment_state"].type is FeatureType.ENV
     assert feats["observation.images.wrist"].shape == (3, 64, 84)
     assert feats["observation.images.agentview"].type is FeatureType.VISUAL
+
+
+def test_features_map_uses_lerobots_key_names():
+    cfg = ActionFlowEnvConfig(task="Lift", cameras="wrist")
+    assert cfg.features_map == {
+        ACTION: ACTION,
+        "poses": f"{OBS_STR}.poses",
+        "agent_pos": OBS_STATE,
+        "environment_state": OBS_ENV_STATE,
+        "pixels/wrist": f"{OBS_IMAGES}.wrist",
+    }
+    assert set(cfg.features) == set(cfg.features_map)
 
 
 def test_bad_config_values_are_rejected():

@@ -11,8 +11,8 @@ import pytest
 from env_success_states import construct_success
 
 from lerobot_actionflow.envs import SceneTransform, get_task
-from lerobot_actionflow.envs.rotations import quat_to_matrix, yaw_matrix
-from lerobot_actionflow.envs.scene_transform import planar_transform_points
+from lerobot_actionflow.envs.scene_mover import planar_motion
+from lerobot_actionflow.rotations import apply, quaternion_to_matrix, yaw_matrix
 
 
 @pytest.fixture(scope="module")
@@ -31,9 +31,22 @@ def transformed_envs():
 
 
 def _expected(poses, yaw, shift, pivot):
-    pos = planar_transform_points(poses[:, :3].astype(np.float64), yaw, shift, pivot)
-    mats = np.stack([yaw_matrix(yaw) @ quat_to_matrix(q) for q in poses[:, 3:].astype(np.float64)])
-    return pos, mats
+    """``p' = Rz(yaw) (p - c) + c + t``, ``R' = Rz(yaw) R``, written out."""
+    c, s = math.cos(yaw), math.sin(yaw)
+    d = poses[:, :3].astype(np.float64) - [pivot[0], pivot[1], 0.0]
+    pos = np.stack([c * d[:, 0] - s * d[:, 1], s * d[:, 0] + c * d[:, 1], d[:, 2]], axis=-1)
+    pos += [pivot[0] + shift[0], pivot[1] + shift[1], 0.0]
+    return pos, yaw_matrix(yaw) @ quaternion_to_matrix(poses[:, 3:])
+
+
+def test_planar_motion_is_the_documented_rigid_motion():
+    x = np.random.default_rng(0).normal(size=(5, 3))
+    poses = np.concatenate([x, np.tile([1.0, 0.0, 0.0, 0.0], (5, 1))], axis=1)
+    r, p = planar_motion(0.7, (0.05, -0.03), (0.1, -0.2))
+    np.testing.assert_allclose(r, yaw_matrix(0.7), atol=0)
+    np.testing.assert_allclose(
+        apply(r, p, x), _expected(poses, 0.7, (0.05, -0.03), (0.1, -0.2))[0], atol=1e-12
+    )
 
 
 @pytest.mark.parametrize("task", ["StackThree_D0", "Square"])
@@ -44,7 +57,7 @@ def test_layout_moves_rigidly(make_cached, transformed_envs, task, move_robot):
     env = transformed_envs(task, yaw=yaw, x=tx, y=ty, move_robot=move_robot)
     moved, _ = env.reset(seed=5)
     pos, mats = _expected(base["poses"], yaw, (tx, ty), get_task(task).pivot_xy)
-    got = np.stack([quat_to_matrix(q) for q in moved["poses"][:, 3:].astype(np.float64)])
+    got = quaternion_to_matrix(moved["poses"][:, 3:])
     np.testing.assert_allclose(moved["poses"][1:, :3], pos[1:], atol=1e-5)
     np.testing.assert_allclose(got[1:], mats[1:], atol=1e-5)
     if move_robot:
@@ -76,7 +89,7 @@ def test_sampled_ranges_are_reproducible_and_in_range(make_cached, transformed_e
         ref = base.reset(seed=seed)[0]["poses"]
         a = env.reset(seed=seed)[0]["poses"]
         np.testing.assert_array_equal(a, env.reset(seed=seed)[0]["poses"])
-        r_ref, r_new = quat_to_matrix(ref[0, 3:]), quat_to_matrix(a[0, 3:])
+        r_ref, r_new = quaternion_to_matrix(ref[0, 3:]), quaternion_to_matrix(a[0, 3:])
         rel = r_new @ r_ref.T  # a yaw about z
         assert abs(rel[2, 2] - 1) < 1e-2
         yaws.append(math.atan2(rel[1, 0], rel[0, 0]))

@@ -14,7 +14,7 @@ from env_success_states import construct_success, set_lid, threading
 import lerobot_actionflow.envs as af_envs
 from lerobot_actionflow import geometry as G
 from lerobot_actionflow.envs import get_task
-from lerobot_actionflow.envs.rotations import matrix_to_rot6d, yaw_matrix
+from lerobot_actionflow.rotations import matrix_to_rotation_6d, yaw_matrix
 
 ALL_TASK_IDS = list(af_envs.GYM_IDS)
 
@@ -157,7 +157,7 @@ def test_pose_control_reaches_the_target(make_cached, gym_id):
     target = G.rotation_6d_to_matrix(torch.from_numpy(action[3:9]).double())
     err = G.geodesic_distance(torch.from_numpy(mat).double(), target)
     assert math.degrees(float(err)) < 3.0
-    np.testing.assert_allclose(obs["agent_pos"][3:9], matrix_to_rot6d(mat), atol=1e-6)
+    np.testing.assert_allclose(obs["agent_pos"][3:9], matrix_to_rotation_6d(mat), atol=1e-6)
 
 
 @pytest.mark.parametrize("gym_id", ALL_TASK_IDS)
