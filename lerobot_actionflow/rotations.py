@@ -18,6 +18,8 @@ Every function broadcasts over leading dimensions and returns float64.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -110,6 +112,8 @@ def rotation_6d_to_matrix(d6: np.ndarray) -> np.ndarray:
         ValueError: if either vector is (nearly) zero or the two are (nearly) parallel.
     """
     d6 = np.asarray(d6, dtype=np.float64)
+    if d6.shape == (6,):
+        return _rotation_6d_to_matrix_one(d6)
     a1, a2 = d6[..., :3], d6[..., 3:6]
     n1 = np.linalg.norm(a1, axis=-1, keepdims=True)
     if (n1 < ROT6D_EPS).any():
@@ -123,6 +127,24 @@ def rotation_6d_to_matrix(d6: np.ndarray) -> np.ndarray:
     (x1, y1, z1), (x2, y2, z2) = np.moveaxis(b1, -1, 0), np.moveaxis(b2, -1, 0)
     b3 = np.stack((y1 * z2 - z1 * y2, z1 * x2 - x1 * z2, x1 * y2 - y1 * x2), axis=-1)  # b1 x b2
     return np.stack((b1, b2, b3), axis=-1)
+
+
+def _rotation_6d_to_matrix_one(d6: np.ndarray) -> np.ndarray:
+    """:func:`rotation_6d_to_matrix` of one ``(6,)`` vector in scalar arithmetic: the env converts
+    one action per step, where the batched array code costs ~10x more (microseconds matter there)."""
+    ax, ay, az, bx, by, bz = d6.tolist()
+    n1 = math.sqrt(ax * ax + ay * ay + az * az)
+    if n1 < ROT6D_EPS:
+        raise ValueError(f"6D rotation has a (near) zero first column: {d6.tolist()}")
+    ax, ay, az = ax / n1, ay / n1, az / n1
+    dot = ax * bx + ay * by + az * bz
+    bx, by, bz = bx - dot * ax, by - dot * ay, bz - dot * az
+    n2 = math.sqrt(bx * bx + by * by + bz * bz)
+    if n2 < ROT6D_EPS:
+        raise ValueError(f"6D rotation columns are (nearly) parallel or zero: {d6.tolist()}")
+    bx, by, bz = bx / n2, by / n2, bz / n2
+    cx, cy, cz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
+    return np.array([[ax, bx, cx], [ay, by, cy], [az, bz, cz]])
 
 
 # ------------------------------------------------------------------ rigid transforms (r, p)
