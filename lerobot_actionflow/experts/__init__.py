@@ -9,15 +9,13 @@ in ``benchmarks/RESULTS.md`` ("Scripted experts") are registered.
 from __future__ import annotations
 
 from lerobot_actionflow.experts.base import Expert, Waypoint, WaypointExpert
-from lerobot_actionflow.experts.pick_place import (
-    CanExpert,
-    CoffeeExpert,
-    LiftExpert,
-    SquareExpert,
-    StackThreeExpert,
-    ThreadingExpert,
-    ThreePieceAssemblyExpert,
-)
+from lerobot_actionflow.experts.can import CanExpert
+from lerobot_actionflow.experts.coffee import CoffeeExpert
+from lerobot_actionflow.experts.lift import LiftExpert
+from lerobot_actionflow.experts.square import SquareExpert
+from lerobot_actionflow.experts.stack_three import StackThreeExpert
+from lerobot_actionflow.experts.threading import ThreadingExpert
+from lerobot_actionflow.experts.three_piece_assembly import ThreePieceAssemblyExpert
 from lerobot_actionflow.experts.tool_hang import ToolHangExpert
 
 EXPERTS: dict[str, type[Expert]] = {}

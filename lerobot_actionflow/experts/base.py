@@ -3,32 +3,38 @@
 An expert is made for one env (:class:`PoseTokenEnv`, for geometry such as object sizes), then
 for every episode ``reset(rng)`` draws its random choices (grasp heading among an object's
 symmetric alternatives, waypoint offsets, speeds, pauses) and ``act(obs)`` returns the env's
-10-D action ``[x y z rot6d gripper]`` (absolute world EEF target, gripper -1 open / +1 closed).
+action ``[pose9 (9), gripper]`` ``(10,)`` (:data:`lerobot_actionflow.schema.ACTION_KEY`: absolute
+world EEF target ``[x, y, z, rot6d]``, gripper -1 open / +1 closed).
 
 :class:`WaypointExpert` runs a list of :class:`Waypoint` s. Each waypoint is a target EEF pose,
 computed from the observation (usually an offset in an object's frame, so the plan follows
-where the objects really are), and a gripper command. The commanded pose moves from the
-previous command towards the target at a bounded speed, ``|dp| <= v dt`` and
-``|Log(R_cmd^T R_target)| <= w dt`` per step (geodesic step ``R <- R Exp(s Log(R^T R_t))``), so
-demonstrations are smooth and their speeds vary with ``v``, ``w``. A waypoint is reached when
-the command equals the target and the measured EEF is within ``tol`` of it; the expert then
-holds for ``hold`` steps (gripper timing and pauses) and goes on. A waypoint that takes more
-than ``timeout`` steps is left anyway (the controller cannot always reach a pose exactly, e.g.
-when pressing an object onto another); the task's success check decides whether the episode
-is kept.
+where the objects really are), and a gripper command. A target that is not ``track`` ed is
+computed once, as its phase begins; state that outlives a phase (a grasp recorded when the
+fingers closed, a placement frozen when a carry began) lives in the expert's typed per-episode
+objects (e.g. :class:`~lerobot_actionflow.experts.skills.Grasp`), which the targets read.
+
+The commanded pose moves from the previous command towards the target at a bounded speed,
+``|dp| <= v dt`` and ``|Log(r_cmd^T r_target)| <= w dt`` per step (geodesic step
+``r <- r Exp(s Log(r^T r_t))``), so demonstrations are smooth and their speeds vary with ``v``,
+``w``. A waypoint is reached when the command equals the target and the measured EEF is within
+``tol`` of it; the expert then holds for ``hold`` steps (gripper timing and pauses) and goes on.
+A waypoint that takes more than ``timeout`` steps is left anyway (the controller cannot always
+reach a pose exactly, e.g. when pressing an object onto another); the task's success check
+decides whether the episode is kept.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
+from lerobot_actionflow import rotations
+from lerobot_actionflow.envs.tasks import CONTROL_FREQ
 from lerobot_actionflow.experts import frames as fr
-
-Pose = tuple[np.ndarray, np.ndarray]
+from lerobot_actionflow.experts.pose import Pose, token_pose
 
 
 class Expert:
@@ -60,8 +66,7 @@ class Waypoint:
 
     Attributes:
         name: for logs and tests.
-        target: ``(obs, mem) -> (p, R)`` world EEF target. ``mem`` is the expert's per-episode
-            scratch dict (e.g. a grasp transform recorded by an earlier phase).
+        target: ``obs -> Pose``: the world EEF target.
         gripper: gripper command during the phase (-1 open, +1 closed).
         speed: max translation speed of the command (m/s).
         rot_speed: max rotation speed of the command (rad/s).
@@ -69,14 +74,14 @@ class Waypoint:
         hold: steps to stay after reaching (gripper closing time, pauses).
         timeout: steps after which the phase is left even if not reached.
         track: recompute the target every step (else once, at phase entry).
-        on_exit: ``(obs, mem) -> None`` called when the phase ends.
-        when: ``(obs, mem) -> bool``, asked as the phase is reached (with the observation of
+        on_exit: ``obs -> None``, called when the phase ends.
+        when: ``obs -> bool``, asked as the phase is reached (with the observation of
             the step that ended the previous one): False skips it (no step is spent), for plans
             with optional parts.
     """
 
     name: str
-    target: Callable[[dict, dict], Pose]
+    target: Callable[[dict], Pose]
     gripper: float = -1.0
     speed: float = 0.25
     rot_speed: float = 1.5
@@ -84,31 +89,34 @@ class Waypoint:
     hold: int = 0
     timeout: int = 200
     track: bool = False
-    on_exit: Callable[[dict, dict], None] | None = None
-    when: Callable[[dict, dict], bool] | None = None
+    on_exit: Callable[[dict], None] | None = None
+    when: Callable[[dict], bool] | None = None
 
 
 @dataclass
 class _State:
+    """Progress through the plan: current waypoint, steps spent in it, steps held at it."""
+
     index: int = 0
     steps: int = 0
     held: int = 0
     target: Pose | None = None
+    #: The last commanded EEF pose, and gripper command.
     cmd: Pose | None = None
-    mem: dict = field(default_factory=dict)
+    gripper: float = -1.0
 
 
 class WaypointExpert(Expert):
     """Runs :meth:`plan` (a list of :class:`Waypoint`) with the bounded-speed command above."""
 
-    dt: float = 1.0 / 20.0
+    #: Seconds per step: the tasks' control period.
+    dt: float = 1.0 / CONTROL_FREQ
 
     def plan(self, rng: np.random.Generator) -> list[Waypoint]:
-        """The waypoints of one episode; random choices are drawn here from ``rng``."""
+        """The waypoints of one episode; all its random choices are drawn here from ``rng``."""
         raise NotImplementedError
 
     def reset(self, rng: np.random.Generator) -> None:
-        self.rng = rng
         self.waypoints = self.plan(rng)
         self.state = _State()
 
@@ -122,32 +130,33 @@ class WaypointExpert(Expert):
 
     @staticmethod
     def eef(obs: dict) -> Pose:
-        return fr.pose_from_row(obs["poses"][0])
+        """The measured EEF pose (row 0 of ``poses``)."""
+        return token_pose(obs, 0)
 
     def act(self, obs: dict[str, Any]) -> np.ndarray:
         s = self.state
         if s.cmd is None:
             s.cmd = self.eef(obs)
-            s.mem["gripper"] = -1.0
+            s.gripper = -1.0
             self._skip_unwanted(obs)
         if self.done:
-            return fr.action_from_pose(*s.cmd, s.mem["gripper"])
+            return fr.action(s.cmd, s.gripper)
         wp = self.waypoints[s.index]
         if s.target is None or wp.track:
-            s.target = wp.target(obs, s.mem)
+            s.target = wp.target(obs)
         s.cmd = self._step_towards(s.cmd, s.target, wp.speed, wp.rot_speed)
-        s.mem["gripper"] = wp.gripper
-        action = fr.action_from_pose(*s.cmd, wp.gripper)
-        p_eef, _ = self.eef(obs)
-        at_target = np.allclose(s.cmd[0], s.target[0], atol=1e-9) and np.allclose(
-            s.cmd[1], s.target[1], atol=1e-9
+        s.gripper = wp.gripper
+        action = fr.action(s.cmd, wp.gripper)
+        p_eef = self.eef(obs).p
+        at_target = np.allclose(s.cmd.p, s.target.p, atol=1e-9) and np.allclose(
+            s.cmd.r, s.target.r, atol=1e-9
         )
         s.steps += 1
-        if at_target and np.linalg.norm(p_eef - s.target[0]) < wp.tol:
+        if at_target and np.linalg.norm(p_eef - s.target.p) < wp.tol:
             s.held += 1
         if s.held > wp.hold or s.steps >= wp.timeout:
             if wp.on_exit is not None:
-                wp.on_exit(obs, s.mem)
+                wp.on_exit(obs)
             s.index, s.steps, s.held, s.target = s.index + 1, 0, 0, None
             self._skip_unwanted(obs)
         return action
@@ -155,18 +164,18 @@ class WaypointExpert(Expert):
     def _skip_unwanted(self, obs: dict[str, Any]) -> None:
         """Pass over the waypoints, from the current one on, whose ``when`` says no."""
         s = self.state
-        while not self.done and (w := self.waypoints[s.index].when) is not None and not w(obs, s.mem):
+        while not self.done and (w := self.waypoints[s.index].when) is not None and not w(obs):
             s.index += 1
 
     def _step_towards(self, cmd: Pose, target: Pose, v: float, w: float) -> Pose:
-        p, r = cmd
-        pt, rt = target
-        d = pt - p
+        """One bounded step from ``cmd`` towards ``target``: at most ``v dt`` (m) along the
+        straight line and ``w dt`` (rad) along the geodesic ``r Exp(s Log(r^T r_t))``."""
+        d = target.p - cmd.p
         dist = float(np.linalg.norm(d))
         step = v * self.dt
-        p_new = pt.copy() if dist <= step else p + d * (step / dist)
-        omega = fr.so3_log(r.T @ rt)
+        p = target.p.copy() if dist <= step else cmd.p + d * (step / dist)
+        omega = rotations.matrix_to_axis_angle(cmd.r.T @ target.r)
         ang = float(np.linalg.norm(omega))
         rstep = w * self.dt
-        r_new = rt.copy() if ang <= rstep else r @ fr.so3_exp(omega * (rstep / ang))
-        return p_new, r_new
+        r = target.r.copy() if ang <= rstep else cmd.r @ rotations.axis_angle_to_matrix(omega * (rstep / ang))
+        return Pose(r, p)

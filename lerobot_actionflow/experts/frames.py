@@ -1,9 +1,9 @@
-"""Numpy rigid-body helpers for the scripted experts (one pose at a time, microseconds each).
+"""Frames of a top-down Panda grasp, grasp headings, and the env action built from a pose.
 
-Conventions as everywhere in the project: quaternions scalar-first ``(w, x, y, z)``, 6D
-rotation = first two columns of the rotation matrix, poses in the world frame.
-A pose is a pair ``(p (3,), R (3, 3))``; ``T = (p, R)`` maps a point ``x`` in its frame to
-``R x + p`` in the world.
+Angles are in radians. A grasp heading ``psi`` names the top-down EEF orientation
+``top_down(psi) = Rz(psi) R_DOWN``; since ``R_DOWN``'s x axis is world ``+y``, the EEF x axis
+(the fingers' closing axis) has the world yaw ``psi + pi / 2`` (:func:`heading` inverts this).
+The rotation maths is :mod:`lerobot_actionflow.rotations`.
 """
 
 from __future__ import annotations
@@ -12,59 +12,29 @@ import math
 
 import numpy as np
 
-from lerobot_actionflow.envs import rotations as rot
+from lerobot_actionflow import rotations
+from lerobot_actionflow.experts.pose import Pose
 
-#: Top-down grasp orientation at yaw 0: EEF x along world +y, EEF y along world +x, EEF z
+#: Top-down grasp orientation at heading 0: EEF x along world +y, EEF y along world +x, EEF z
 #: (the approach axis) pointing down. This is the Panda's home orientation in robosuite; the
 #: fingers close along the EEF x axis (measured: in the grip-site frame the finger pads sit at
 #: x = +-0.02..0.028 m and the hand spans x +-0.10 m, y +-0.032 m, 0.031-0.123 m behind the site).
 R_DOWN = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
 
-
-def rz(yaw: float) -> np.ndarray:
-    """Rotation by ``yaw`` about world z."""
-    return rot.yaw_matrix(yaw)
-
-
-def so3_exp(w: np.ndarray) -> np.ndarray:
-    """Rodrigues: ``exp(hat(w))`` for an axis-angle vector ``w (3,)``."""
-    th = float(np.linalg.norm(w))
-    if th < 1e-12:
-        return np.eye(3)
-    k = w / th
-    kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-    return np.eye(3) + math.sin(th) * kx + (1.0 - math.cos(th)) * kx @ kx
-
-
-def so3_log(r: np.ndarray) -> np.ndarray:
-    """Axis-angle vector (angle in ``[0, pi]``) of a rotation matrix."""
-    return rot.matrix_to_rotvec(r)
-
-
-def angle_between(r1: np.ndarray, r2: np.ndarray) -> float:
-    """Geodesic distance ``|Log(r1^T r2)|`` in radians."""
-    c = (np.trace(r1.T @ r2) - 1.0) / 2.0
-    return float(math.acos(min(1.0, max(-1.0, c))))
-
-
-def pose_from_row(row: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``[x y z qw qx qy qz]`` -> ``(p (3,), R (3, 3))``."""
-    return np.asarray(row[:3], dtype=np.float64).copy(), rot.quat_to_matrix(row[3:7])
-
-
-def compose(a: tuple, b: tuple) -> tuple[np.ndarray, np.ndarray]:
-    """``a * b``: ``(R_a p_b + p_a, R_a R_b)``."""
-    return a[1] @ b[0] + a[0], a[1] @ b[1]
-
-
-def inverse(a: tuple) -> tuple[np.ndarray, np.ndarray]:
-    """``a^-1 = (-R^T p, R^T)``."""
-    return -a[1].T @ a[0], a[1].T
+#: Reachable headings ``psi`` (relative to the home heading) of a top-down Panda grasp: turning
+#: the other way than ``+`` drives wrist joint 7 into its limit beyond about -0.6 pi (measured
+#: with robosuite 1.5.2's Panda, absolute OSC; +0.8 pi is still fine).
+TURN_RANGE = (-0.5 * math.pi, 0.8 * math.pi)
 
 
 def yaw_of(r: np.ndarray) -> float:
-    """Heading of a rotation's x axis in the world xy plane."""
+    """World yaw of a rotation's x axis: ``atan2(r10, r00)``."""
     return math.atan2(r[1, 0], r[0, 0])
+
+
+def heading(r: np.ndarray) -> float:
+    """Grasp heading ``psi`` of a top-down orientation ``r = top_down(psi)``: ``yaw_of(r) - pi / 2``."""
+    return yaw_of(r) - math.pi / 2
 
 
 def wrap(a: float) -> float:
@@ -72,20 +42,15 @@ def wrap(a: float) -> float:
     return math.pi - (math.pi - a) % (2 * math.pi)
 
 
-def top_down(yaw: float, lean: float = 0.0) -> np.ndarray:
-    """Top-down EEF orientation turned by ``yaw`` about world z from :data:`R_DOWN`, then
-    tilted by ``lean`` about its own x axis (the fingers' closing axis): ``Rz(yaw) R_DOWN
-    Rx(lean)``. The tilt keeps both finger pads at one height; it moves the wrist, which sits
-    ``L`` behind the grip site along the approach axis, by ``L sin(lean)`` along the EEF y axis
-    (``(cos yaw, sin yaw, 0)``)."""
-    r = rz(yaw) @ R_DOWN
-    return r if lean == 0.0 else r @ so3_exp(np.array([lean, 0.0, 0.0]))
+def top_down(psi: float, lean: float = 0.0) -> np.ndarray:
+    """Top-down EEF orientation turned by ``psi`` about world z from :data:`R_DOWN`, then tilted
+    by ``lean`` about its own x axis (the fingers' closing axis): ``Rz(psi) R_DOWN Rx(lean)``.
 
-
-#: Reachable headings ``psi`` (rad, relative to the home heading) of a top-down Panda grasp:
-#: turning the other way than ``+`` drives wrist joint 7 into its limit beyond about -0.6 pi
-#: (measured with robosuite 1.5.2's Panda, absolute OSC; +0.8 pi is still fine).
-TURN_RANGE = (-0.5 * math.pi, 0.8 * math.pi)
+    The tilt keeps both finger pads at one height; it moves the wrist, which sits ``L`` behind
+    the grip site along the approach axis, by ``L sin(lean)`` along the EEF y axis
+    ``(cos psi, sin psi, 0)``."""
+    r = rotations.yaw_matrix(psi) @ R_DOWN
+    return r if lean == 0.0 else r @ rotations.axis_angle_to_matrix(np.array([lean, 0.0, 0.0]))
 
 
 def symmetric_yaws(
@@ -105,6 +70,21 @@ def symmetric_yaws(
     return out or [min(cands, key=lambda c: abs(wrap(c - current)))]
 
 
-def action_from_pose(p: np.ndarray, r: np.ndarray, gripper: float) -> np.ndarray:
-    """``(p, R, g)`` -> the env's float32 action ``[x y z rot6d g]`` (10,)."""
-    return np.concatenate([p, r[:, 0], r[:, 1], [gripper]]).astype(np.float32)
+def across(headings: list[float], d: np.ndarray) -> list[float]:
+    """The headings whose finger axis (world yaw ``psi + pi / 2``) lies most nearly across the
+    horizontal direction ``d`` (``(2,)`` or more): those with ``|cos|`` of the angle between the
+    two within 0.1 of the smallest."""
+    h = math.atan2(d[1], d[0])
+    score = [abs(math.cos(y + math.pi / 2 - h)) for y in headings]
+    return [y for y, c in zip(headings, score, strict=True) if c <= min(score) + 0.1]
+
+
+def pick_one(options: list, choice: float):
+    """``options[floor(choice * n)]`` for ``choice`` in ``[0, 1)`` (a uniform draw made earlier)."""
+    return options[min(int(choice * len(options)), len(options) - 1)]
+
+
+def action(pose: Pose, gripper: float) -> np.ndarray:
+    """The env's float32 action ``[pose9 (9), gripper]`` ``(10,)`` (schema ``action``): the
+    absolute world EEF target ``[x, y, z, rot6d]`` and the gripper command (-1 open, +1 closed)."""
+    return np.concatenate((rotations.rp_to_pose9(pose.r, pose.p), [gripper])).astype(np.float32)

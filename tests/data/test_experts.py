@@ -9,11 +9,12 @@ import numpy as np
 import pytest
 
 import lerobot_actionflow.envs
-from lerobot_actionflow.envs.rotations import matrix_to_quat
 from lerobot_actionflow.experts import EXPERTS, expert_class, make_expert
 from lerobot_actionflow.experts import frames as fr
 from lerobot_actionflow.experts.base import Waypoint, WaypointExpert
+from lerobot_actionflow.experts.pose import Pose, token_pose
 from lerobot_actionflow.experts.rollout import run_episode
+from lerobot_actionflow.rotations import matrix_to_quaternion
 
 
 @pytest.fixture(scope="module")
@@ -33,8 +34,8 @@ def test_lift_expert_succeeds_with_varied_grasps_and_speeds(lift_env):
         assert actions.shape == (len(ep), 10) and actions.dtype == np.float32
         np.testing.assert_allclose(np.linalg.norm(actions[:, 3:6], axis=1), 1.0, atol=1e-5)
         # Which of the cube's four faces the fingers closed on: grasp heading relative to the cube.
-        _, r_cube = fr.pose_from_row(ep.observations[0]["poses"][1])
-        psi = fr.yaw_of(expert.state.mem["cube_pose"][1]) - math.pi / 2
+        r_cube = token_pose(ep.observations[0], 1).r
+        psi = fr.heading(expert.cube.eef.r)
         sides.add(round(fr.wrap(psi - fr.yaw_of(r_cube)) / (math.pi / 2)) % 4)
         lengths.add(len(ep))
     assert len(sides) >= 2, sides  # symmetric alternatives are used
@@ -81,16 +82,15 @@ def test_expert_succeeds_on_a_hard_seed(task, seed):
 
 def test_three_piece_assembly_expert_relocates_a_far_piece_then_succeeds():
     """Seed 17 of ThreePieceAssembly_D2 puts piece 1 0.79 m from the robot base, where
-    three_piece_assembly-1's top-down pick straightened the arm against its elbow limit and the
-    episode failed; version 2 first sets the piece down 0.62-0.66 m from the base."""
+    a top-down pick straightens the arm against its elbow limit there; the expert first sets the
+    piece down 0.62-0.66 m from the base."""
     env = gym.make("lerobot_actionflow/ThreePieceAssembly_D2-v0", render_mode=None)
     try:
         expert = make_expert("ThreePieceAssembly_D2", env)
         ep = run_episode(env, expert, 17, record=False)
-        mem = expert.state.mem
         base_xy = env.unwrapped.robosuite_env.robots[0].base_pos[:2]
-        assert mem["p1_relocated"] and not mem["p2_relocated"]
-        assert 0.62 <= float(np.linalg.norm(mem["p1_spot"][:2] - base_xy)) <= 0.66
+        assert expert.relocation1.far and not expert.relocation2.far
+        assert 0.62 <= float(np.linalg.norm(expert.relocation1.spot[:2] - base_xy)) <= 0.66
         assert ep.success, f"failed in phase {expert.phase}"
     finally:
         env.close()
@@ -117,9 +117,9 @@ def test_waypoint_with_a_false_condition_is_skipped_without_a_step():
     down = fr.top_down(0.0)
 
     def at(x, name):
-        def target(obs, mem):
+        def target(obs):
             computed.append(name)
-            return np.array([x, 0.0, 1.0]), down
+            return Pose(down, np.array([x, 0.0, 1.0]))
 
         return target
 
@@ -127,13 +127,13 @@ def test_waypoint_with_a_false_condition_is_skipped_without_a_step():
         def plan(self, rng):
             return [
                 Waypoint("a", at(0.0, "a"), tol=1.0),
-                Waypoint("b", at(0.5, "b"), tol=1.0, when=lambda o, m: asked.append("b") or False),
-                Waypoint("c", at(0.0, "c"), tol=1.0, when=lambda o, m: asked.append("c") or True),
+                Waypoint("b", at(0.5, "b"), tol=1.0, when=lambda o: asked.append("b") or False),
+                Waypoint("c", at(0.0, "c"), tol=1.0, when=lambda o: asked.append("c") or True),
             ]
 
     expert = Plan(env=None)
     expert.reset(np.random.default_rng(0))
-    obs = {"poses": np.concatenate([[0.0, 0.0, 1.0], matrix_to_quat(down)])[None, :]}  # EEF at a and c
+    obs = {"poses": np.concatenate([[0.0, 0.0, 1.0], matrix_to_quaternion(down)])[None, :]}  # EEF at a and c
     phases = []
     while not expert.done and len(phases) < 10:
         phases.append(expert.phase)
