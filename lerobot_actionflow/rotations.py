@@ -87,6 +87,9 @@ def matrix_to_axis_angle(r: np.ndarray) -> np.ndarray:
 
 def yaw_matrix(yaw) -> np.ndarray:
     """Rotation by ``yaw`` radians about the world z axis: ``(...) -> (..., 3, 3)``."""
+    if np.ndim(yaw) == 0:  # the experts' per-step case, without the stacking overhead
+        c, s = np.cos(yaw), np.sin(yaw)
+        return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
     yaw = np.asarray(yaw, dtype=np.float64)
     c, s, z, o = np.cos(yaw), np.sin(yaw), np.zeros_like(yaw), np.ones_like(yaw)
     return np.stack((np.stack((c, -s, z), -1), np.stack((s, c, z), -1), np.stack((z, z, o), -1)), -2)
