@@ -27,22 +27,31 @@ from lerobot_actionflow.flow import se3 as se3_flow
 from lerobot_actionflow.geometry.se3 import rp_to_pose7
 from lerobot_actionflow.policies.actionflow.configuration_actionflow import ActionflowConfig
 from lerobot_actionflow.policies.actionflow.modeling_actionflow import ActionflowPolicy
+from lerobot_actionflow.schema import (
+    ACTION_DIM,
+    ACTION_KEY,
+    POSE7_DIM,
+    POSES_KEY,
+    STATE_DIM,
+    STATE_KEY,
+    image_key,
+)
 from lerobot_actionflow.schema.tensors import pose_to_action
 
 
 def make_config(args, device: str, fast: bool) -> ActionflowConfig:
     inputs = {
-        "observation.poses": PolicyFeature(FeatureType.STATE, (args.entities, 7)),
-        "observation.state": PolicyFeature(FeatureType.STATE, (11,)),
+        POSES_KEY: PolicyFeature(FeatureType.STATE, (args.entities, POSE7_DIM)),
+        STATE_KEY: PolicyFeature(FeatureType.STATE, (STATE_DIM,)),
     }
     if args.image:
-        inputs["observation.images.wrist"] = PolicyFeature(FeatureType.VISUAL, (3, 80, 80))
+        inputs[image_key("wrist")] = PolicyFeature(FeatureType.VISUAL, (3, 80, 80))
     return ActionflowConfig(
         n_obs_steps=args.n_obs_steps,
         horizon=args.horizon,
         num_layers=args.layers,
         input_features=inputs,
-        output_features={"action": PolicyFeature(FeatureType.ACTION, (10,))},
+        output_features={ACTION_KEY: PolicyFeature(FeatureType.ACTION, (ACTION_DIM,))},
         device=device,
         compile_sampler=fast,  # CPU: frozen weights + C++ wrapper; CUDA: CUDA graphs
         compile_mode="reduce-overhead",
@@ -51,13 +60,13 @@ def make_config(args, device: str, fast: bool) -> ActionflowConfig:
 
 def make_batch(cfg: ActionflowConfig, batch_size: int, device: str) -> dict:
     gen = torch.Generator().manual_seed(0)
-    n = cfg.input_features["observation.poses"].shape[0]
+    n = cfg.input_features[POSES_KEY].shape[0]
     r = g.random_rotation(batch_size, cfg.n_obs_steps, n, generator=gen)
     p = 0.2 * torch.randn(batch_size, cfg.n_obs_steps, n, 3, generator=gen)
     batch = {
-        "observation.poses": rp_to_pose7(r, p),
-        "observation.state": torch.randn(batch_size, cfg.n_obs_steps, 11, generator=gen),
-        "action": pose_to_action(
+        POSES_KEY: rp_to_pose7(r, p),
+        STATE_KEY: torch.randn(batch_size, cfg.n_obs_steps, STATE_DIM, generator=gen),
+        ACTION_KEY: pose_to_action(
             g.random_rotation(batch_size, cfg.horizon, generator=gen),
             0.1 * torch.randn(batch_size, cfg.horizon, 3, generator=gen),
             torch.rand(batch_size, cfg.horizon, generator=gen) * 2 - 1,
@@ -76,7 +85,7 @@ def _sync(device: str) -> None:
 def time_chunks(policies: dict, batch, k: int, device: str, warmup: int, repeats: int) -> dict:
     """Median / p90 latency of ``predict_action_chunk`` for each policy, timed round-robin (one
     call of each in turn) so that they all see the same machine load."""
-    obs = {key: v for key, v in batch.items() if key != "action"}
+    obs = {key: v for key, v in batch.items() if key != ACTION_KEY}
     first = {}
     for mode, policy in policies.items():
         t0 = time.perf_counter()
@@ -139,7 +148,7 @@ def bench_device(args, device: str) -> dict:
         1, cfg.horizon, cfg.noise_sigma, generator=torch.Generator().manual_seed(1)
     )
     noise = se3_flow.LocalNoise(noise.r.to(device), noise.p.to(device), noise.g.to(device))
-    obs = {key: v for key, v in batch.items() if key != "action"}
+    obs = {key: v for key, v in batch.items() if key != ACTION_KEY}
     chunks = {mode: p.predict_action_chunk(obs, noise=noise).cpu() for mode, p in policies.items()}
     result["parameters"] = sum(p.numel() for p in policies["eager"].parameters())
     if "fast" in chunks:

@@ -36,17 +36,19 @@ from lerobot.policies.diffusion.modeling_diffusion import DiffusionPolicy
 from lerobot_actionflow.evaluation.sweep import set_inference_steps
 from lerobot_actionflow.policies.euclidean_flow.configuration_euclidean_flow import EuclideanFlowConfig
 from lerobot_actionflow.policies.euclidean_flow.modeling_euclidean_flow import EuclideanFlowPolicy
+from lerobot_actionflow.schema import ACTION_DIM, ACTION_KEY, ENV_STATE_KEY, POSE9_DIM, STATE_DIM, STATE_KEY
 
-STATE, ENV, ACTION, N_OBS, HORIZON, N_ACTION = 11, 9, 10, 2, 16, 8
+STATE, ENV, ACTION = STATE_DIM, POSE9_DIM, ACTION_DIM  # one object token
+N_OBS, HORIZON, N_ACTION = 2, 16, 8
 POLICIES = ("diffusion", "ef-unet", "ef-transformer")
 
 
 def _features():
     inputs = {
-        "observation.state": PolicyFeature(FeatureType.STATE, (STATE,)),
-        "observation.environment_state": PolicyFeature(FeatureType.ENV, (ENV,)),
+        STATE_KEY: PolicyFeature(FeatureType.STATE, (STATE,)),
+        ENV_STATE_KEY: PolicyFeature(FeatureType.ENV, (ENV,)),
     }
-    return inputs, {"action": PolicyFeature(FeatureType.ACTION, (ACTION,))}
+    return inputs, {ACTION_KEY: PolicyFeature(FeatureType.ACTION, (ACTION,))}
 
 
 def build(name: str, device: str, down_dims: tuple[int, ...]):
@@ -89,8 +91,8 @@ def run(devices: list[str], steps: list[int], down_dims, warmup: int, repeats: i
     rows = []
     for device in devices:
         batch = {
-            "observation.state": torch.randn(1, N_OBS, STATE, device=device),
-            "observation.environment_state": torch.randn(1, N_OBS, ENV, device=device),
+            STATE_KEY: torch.randn(1, N_OBS, STATE, device=device),
+            ENV_STATE_KEY: torch.randn(1, N_OBS, ENV, device=device),
         }
         torch.manual_seed(0)
         policies = {name: build(name, device, down_dims) for name in POLICIES}

@@ -44,6 +44,7 @@ from lerobot_actionflow.policies.actionflow.configuration_actionflow import Acti
 from lerobot_actionflow.policies.actionflow.modeling_actionflow import ActionflowPolicy
 from lerobot_actionflow.policies.euclidean_flow.configuration_euclidean_flow import EuclideanFlowConfig
 from lerobot_actionflow.policies.euclidean_flow.modeling_euclidean_flow import EuclideanFlowPolicy
+from lerobot_actionflow.schema import ACTION_KEY, ENV_STATE_KEY, POSES_KEY, STATE_KEY, feature_shapes
 from lerobot_actionflow.schema.tensors import pose_to_action
 
 POLICIES = {
@@ -51,7 +52,8 @@ POLICIES = {
     "euclidean_flow": (EuclideanFlowConfig, EuclideanFlowPolicy),
     "diffusion": (DiffusionConfig, DiffusionPolicy),
 }
-ENTITIES, STATE, ENV_STATE = 2, 11, 9
+ENTITIES = 2  # Lift: the EEF and the cube
+SHAPES = feature_shapes(ENTITIES)
 
 
 def cli_overrides(args: list[str]) -> dict:
@@ -74,11 +76,11 @@ def build(name: str, preset: str, device: str):
     config = config_cls(
         device=device,
         input_features={
-            "observation.poses": PolicyFeature(FeatureType.STATE, (ENTITIES, 7)),
-            "observation.state": PolicyFeature(FeatureType.STATE, (STATE,)),
-            "observation.environment_state": PolicyFeature(FeatureType.ENV, (ENV_STATE,)),
+            POSES_KEY: PolicyFeature(FeatureType.STATE, SHAPES[POSES_KEY]),
+            STATE_KEY: PolicyFeature(FeatureType.STATE, SHAPES[STATE_KEY]),
+            ENV_STATE_KEY: PolicyFeature(FeatureType.ENV, SHAPES[ENV_STATE_KEY]),
         },
-        output_features={"action": PolicyFeature(FeatureType.ACTION, (10,))},
+        output_features={ACTION_KEY: PolicyFeature(FeatureType.ACTION, SHAPES[ACTION_KEY])},
         **cli_overrides(COMMON + size),
     )
     return policy_cls(config).to(device)
@@ -90,10 +92,10 @@ def make_batch(batch_size: int, n_obs: int, horizon: int, device: str) -> dict:
     gen = torch.Generator().manual_seed(0)
     r = g.random_rotation(batch_size, n_obs, ENTITIES, generator=gen)
     batch = {
-        "observation.poses": rp_to_pose7(r, 0.2 * torch.randn(batch_size, n_obs, ENTITIES, 3, generator=gen)),
-        "observation.state": torch.randn(batch_size, n_obs, STATE, generator=gen),
-        "observation.environment_state": torch.randn(batch_size, n_obs, ENV_STATE, generator=gen),
-        "action": pose_to_action(
+        POSES_KEY: rp_to_pose7(r, 0.2 * torch.randn(batch_size, n_obs, ENTITIES, 3, generator=gen)),
+        STATE_KEY: torch.randn(batch_size, n_obs, *SHAPES[STATE_KEY], generator=gen),
+        ENV_STATE_KEY: torch.randn(batch_size, n_obs, *SHAPES[ENV_STATE_KEY], generator=gen),
+        ACTION_KEY: pose_to_action(
             g.random_rotation(batch_size, horizon, generator=gen),
             0.1 * torch.randn(batch_size, horizon, 3, generator=gen),
             torch.rand(batch_size, horizon, generator=gen) * 2 - 1,
@@ -147,7 +149,7 @@ def train_throughput(policies: dict, batch: dict, device: str, warmup: int, step
             _sync(device)
             if i >= warmup:
                 seconds[name] += time.perf_counter() - t0
-    n = batch["action"].shape[0]
+    n = batch[ACTION_KEY].shape[0]
     return {name: round(n * steps / s, 1) for name, s in seconds.items()}
 
 
