@@ -10,17 +10,21 @@ Semantics:
   successful rollouts are saved; failures are counted and reported.
 - Attempt ``i`` (0, 1, 2, ...) uses seed ``seed + i`` for the env reset and for the expert's
   random choices, so a dataset is reproducible from its metadata.
-- Re-running the same command on an existing dataset **resumes** it: it reopens the dataset
-  (``LeRobotDataset.resume``), checks that task and features match, and continues from the
-  next unused attempt index until the total reaches ``--episodes`` (nothing happens if it
-  already does). A larger ``--episodes`` thus extends a dataset.
-- Ctrl-C / SIGINT / SIGTERM: the episode in progress is discarded, the episodes already saved
-  are finalised (a loadable dataset), and the command exits with status 130. If the run had
-  created the dataset and saved nothing, the folder is removed. The same happens on an error
-  (which is then re-raised).
+- Crash safety (:mod:`.staging`): ``--root`` is never written in place. Each kept episode is
+  staged in ``<root>.collect-staging/`` when it ends; at the end of the run (also after a signal
+  or an error) the staged episodes are appended to a copy of the dataset, which is loaded back,
+  checked and renamed over ``--root``. ``kill -9`` at any instant costs at most the episode in
+  progress.
+- Re-running the same command **resumes**: it finishes or undoes a commit a crash interrupted,
+  checks that the dataset at ``--root`` is whole (else exit 2 with what to do) and matches task,
+  images, seed and features, takes the staged episodes, and continues from the next unused
+  attempt index until the total reaches ``--episodes`` (nothing happens if it already does). A
+  larger ``--episodes`` thus extends a dataset. Success is reported only after the result loads.
+- Ctrl-C / SIGINT / SIGTERM: the episode in progress is discarded, the saved ones are merged,
+  and the command exits with status 130; with nothing saved, no folder is created.
 - ``meta/actionflow_collect.json`` records task, variant, expert class and version, base seed,
   the seeds kept and failed, attempts, successes and the success rate; it is rewritten after
-  every saved episode.
+  every run (the staged ``state.json`` after every attempt).
 - fps is the env's control frequency (:data:`~lerobot_actionflow.envs.tasks.CONTROL_FREQ`). Each
   frame holds the observation the expert saw and the action it took on it (``action[t]`` is the
   absolute EEF target sent at step ``t``).
