@@ -109,7 +109,9 @@ def matrix_to_rotation_6d(r: np.ndarray) -> np.ndarray:
 
 def rotation_6d_to_matrix(d6: np.ndarray) -> np.ndarray:
     """Gram-Schmidt of 6D rotations ``(..., 6) -> (..., 3, 3)``: ``b1 = a1 / |a1|``,
-    ``b2 = (a2 - (b1.a2) b1) / |.|``, ``b3 = b1 x b2``, as columns.
+    ``b2 = (a2 - (b1.a2) b1) / |.|``, ``b3 = b1 x b2``, as columns. Each column is first divided
+    by its largest absolute entry (the result is scale-free), so entries up to the float64
+    maximum do not overflow the norms; the (near-)zero tests apply to the unscaled norms.
 
     Raises:
         ValueError: if either vector is (nearly) zero or the two are (nearly) parallel.
@@ -118,13 +120,16 @@ def rotation_6d_to_matrix(d6: np.ndarray) -> np.ndarray:
     if d6.shape == (6,):
         return _rotation_6d_to_matrix_one(d6)
     a1, a2 = d6[..., :3], d6[..., 3:6]
+    m1 = np.abs(a1).max(axis=-1, keepdims=True)
+    m2 = np.abs(a2).max(axis=-1, keepdims=True)
+    a1, a2 = a1 / np.where(m1 > 0, m1, 1.0), a2 / np.where(m2 > 0, m2, 1.0)
     n1 = np.linalg.norm(a1, axis=-1, keepdims=True)
-    if (n1 < ROT6D_EPS).any():
+    if (n1 * m1 < ROT6D_EPS).any():
         raise ValueError(f"6D rotation has a (near) zero first column: {d6.tolist()}")
     b1 = a1 / n1
     a2 = a2 - (b1 * a2).sum(-1, keepdims=True) * b1
     n2 = np.linalg.norm(a2, axis=-1, keepdims=True)
-    if (n2 < ROT6D_EPS).any():
+    if (n2 * m2 < ROT6D_EPS).any():
         raise ValueError(f"6D rotation columns are (nearly) parallel or zero: {d6.tolist()}")
     b2 = a2 / n2
     (x1, y1, z1), (x2, y2, z2) = np.moveaxis(b1, -1, 0), np.moveaxis(b2, -1, 0)
@@ -136,14 +141,16 @@ def _rotation_6d_to_matrix_one(d6: np.ndarray) -> np.ndarray:
     """:func:`rotation_6d_to_matrix` of one ``(6,)`` vector in scalar arithmetic: the env converts
     one action per step, where the batched array code costs ~10x more (microseconds matter there)."""
     ax, ay, az, bx, by, bz = d6.tolist()
+    m1, m2 = max(abs(ax), abs(ay), abs(az)) or 1.0, max(abs(bx), abs(by), abs(bz)) or 1.0
+    ax, ay, az, bx, by, bz = ax / m1, ay / m1, az / m1, bx / m2, by / m2, bz / m2
     n1 = math.sqrt(ax * ax + ay * ay + az * az)
-    if n1 < ROT6D_EPS:
+    if n1 * m1 < ROT6D_EPS:
         raise ValueError(f"6D rotation has a (near) zero first column: {d6.tolist()}")
     ax, ay, az = ax / n1, ay / n1, az / n1
     dot = ax * bx + ay * by + az * bz
     bx, by, bz = bx - dot * ax, by - dot * ay, bz - dot * az
     n2 = math.sqrt(bx * bx + by * by + bz * bz)
-    if n2 < ROT6D_EPS:
+    if n2 * m2 < ROT6D_EPS:
         raise ValueError(f"6D rotation columns are (nearly) parallel or zero: {d6.tolist()}")
     bx, by, bz = bx / n2, by / n2, bz / n2
     cx, cy, cz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx

@@ -10,17 +10,21 @@ Semantics:
   successful rollouts are saved; failures are counted and reported.
 - Attempt ``i`` (0, 1, 2, ...) uses seed ``seed + i`` for the env reset and for the expert's
   random choices, so a dataset is reproducible from its metadata.
-- Re-running the same command on an existing dataset **resumes** it: it reopens the dataset
-  (``LeRobotDataset.resume``), checks that task and features match, and continues from the
-  next unused attempt index until the total reaches ``--episodes`` (nothing happens if it
-  already does). A larger ``--episodes`` thus extends a dataset.
-- Ctrl-C / SIGINT / SIGTERM: the episode in progress is discarded, the episodes already saved
-  are finalised (a loadable dataset), and the command exits with status 130. If the run had
-  created the dataset and saved nothing, the folder is removed. The same happens on an error
-  (which is then re-raised).
+- Crash safety (:mod:`.staging`): ``--root`` is never written in place. Each kept episode is
+  staged in ``<root>.collect-staging/`` when it ends; at the end of the run (also after a signal
+  or an error) the staged episodes are appended to a copy of the dataset, which is loaded back,
+  checked and renamed over ``--root``. ``kill -9`` at any instant costs at most the episode in
+  progress.
+- Re-running the same command **resumes**: it finishes or undoes a commit a crash interrupted,
+  checks that the dataset at ``--root`` is whole (else exit 2 with what to do) and matches task,
+  images, seed and features, takes the staged episodes, and continues from the next unused
+  attempt index until the total reaches ``--episodes`` (nothing happens if it already does). A
+  larger ``--episodes`` thus extends a dataset. Success is reported only after the result loads.
+- Ctrl-C / SIGINT / SIGTERM: the episode in progress is discarded, the saved ones are merged,
+  and the command exits with status 130; with nothing saved, no folder is created.
 - ``meta/actionflow_collect.json`` records task, variant, expert class and version, base seed,
   the seeds kept and failed, attempts, successes and the success rate; it is rewritten after
-  every saved episode.
+  every run (the staged ``state.json`` after every attempt).
 - fps is the env's control frequency (:data:`~lerobot_actionflow.envs.tasks.CONTROL_FREQ`). Each
   frame holds the observation the expert saw and the action it took on it (``action[t]`` is the
   absolute EEF target sent at step ``t``).
@@ -30,33 +34,30 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import copy
 import datetime as _dt
 import json
-import os
-import shutil
 import signal
 import sys
 from pathlib import Path
 from typing import Any
 
-META_FILE = "actionflow_collect.json"
+from lerobot_actionflow.data.staging import META_FILE, InconsistentDataset, Staging, check_dataset, read_json
+
+__all__ = ["META_FILE", "collect", "main", "read_collect_meta"]
+
 EXIT_INTERRUPTED = 130
 
 
 def read_collect_meta(root: str | Path) -> dict[str, Any] | None:
     """The collection metadata of a dataset, or ``None`` if it has none."""
-    path = Path(root) / "meta" / META_FILE
-    return json.loads(path.read_text()) if path.exists() else None
+    return read_json(Path(root) / "meta" / META_FILE)
 
 
-def _write_meta(root: Path, meta: dict[str, Any]) -> None:
+def _stamp(meta: dict[str, Any]) -> dict[str, Any]:
     meta["success_rate"] = meta["successes"] / meta["attempts"] if meta["attempts"] else None
     meta["updated"] = _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")
-    path = root / "meta" / META_FILE
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(meta, indent=2))
-    os.replace(tmp, path)
+    return meta
 
 
 class _StopFlag:
@@ -86,55 +87,80 @@ class _StopFlag:
         return self.stop
 
 
-def _open_dataset(root: Path, repo_id: str, spec, cls, features: dict, cams, seed: int, image_format: str):
-    """Resume the dataset at ``root`` (checking it matches) or create it.
+def _settings_differ(meta: dict[str, Any], spec, cams, seed: int) -> bool:
+    return meta["task"] != spec.name or meta["images"] != bool(cams) or meta["base_seed"] != seed
 
-    Returns ``(dataset, meta, created, episodes already saved)``.
+
+def _target_meta(root: Path) -> dict[str, Any] | None:
+    return read_collect_meta(root) if (root / "meta" / "info.json").is_file() else None
+
+
+def _check_target(root: Path, repo_id: str, spec, cams, seed: int, features: dict) -> dict[str, Any] | None:
+    """The collection metadata of the dataset at ``root`` after checking that it is whole and
+    matches the request; ``None`` when there is no dataset yet.
+
+    Raises:
+        ValueError: ``root`` is no folder, holds something else, another collection, or an
+            inconsistent dataset (with what to do about it).
     """
-    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+    if root.exists() and not root.is_dir():
+        raise ValueError(f"--root {root} is a file, not a dataset folder: choose a folder")
+    if not (root / "meta" / "info.json").is_file():
+        if root.exists() and any(root.iterdir()):
+            raise ValueError(f"{root} exists and is not a LeRobotDataset: refusing to write into it")
+        return None
+    meta = read_collect_meta(root)
+    if meta is None:
+        raise ValueError(f"{root} holds a dataset without {META_FILE}; not written by actionflow-collect")
+    if _settings_differ(meta, spec, cams, seed):
+        raise ValueError(
+            f"{root} holds a {meta['task']} dataset (images={meta['images']}, seed={meta['base_seed']}); "
+            f"asked for {spec.name} (images={bool(cams)}, seed={seed}): use another --root"
+        )
+    try:
+        check_dataset(root, repo_id, meta)
+    except InconsistentDataset as e:
+        raise ValueError(
+            f"{e}. An interrupted run of an older actionflow-collect (which wrote in place) leaves such a "
+            f"folder. Collection is deterministic per seed: move it aside (mv {root} {root}.broken) and "
+            "run the same command again to recreate it."
+        ) from None
+    have = json.loads((root / "meta" / "info.json").read_text())["features"]
+    have = {k: (v["dtype"], tuple(v["shape"])) for k, v in have.items() if k in features}
+    want = {k: (v["dtype"], tuple(v["shape"])) for k, v in features.items()}
+    if have != want:
+        raise ValueError(f"{root}: existing features {have} differ from the requested {want}")
+    return meta
 
+
+def _run_meta(staging: Staging, target: dict[str, Any] | None, spec, cls, cams, seed: int) -> dict[str, Any]:
+    """The metadata this run continues from: the staged state (an earlier run's unmerged work),
+    else the dataset's, else a fresh one; staged episodes it does not list yet are added."""
     from lerobot_actionflow.envs.tasks import CONTROL_FREQ
 
-    if (root / "meta" / "info.json").exists():
-        meta = read_collect_meta(root)
-        if meta is None:
-            raise ValueError(f"{root} holds a dataset without {META_FILE}; not written by actionflow-collect")
-        if meta["task"] != spec.name or meta["images"] != bool(cams) or meta["base_seed"] != seed:
-            raise ValueError(
-                f"{root} holds a {meta['task']} dataset (images={meta['images']}, seed={meta['base_seed']}); "
-                f"asked for {spec.name} (images={bool(cams)}, seed={seed}): use another --root"
-            )
-        ds = LeRobotDataset.resume(repo_id, root=root)
-        have = {k: (v["dtype"], tuple(v["shape"])) for k, v in ds.meta.features.items() if k in features}
-        want = {k: (v["dtype"], tuple(v["shape"])) for k, v in features.items()}
-        if have != want:
-            ds.finalize()
-            raise ValueError(f"{root}: existing features {have} differ from the requested {want}")
-        return ds, meta, False, int(ds.meta.total_episodes)
-    if root.exists() and any(root.iterdir()):
-        raise ValueError(f"{root} exists and is not a LeRobotDataset: refusing to write into it")
-    if root.exists():
-        root.rmdir()
-    ds = LeRobotDataset.create(
-        repo_id=repo_id, fps=CONTROL_FREQ, features=features, root=root, use_videos=image_format == "video"
-    )
-    meta = {
-        "task": spec.name,
-        "variant": spec.variant,
-        "expert": f"{cls.__module__}.{cls.__qualname__}",
-        "expert_version": cls.version,
-        "base_seed": seed,
-        "images": bool(cams),
-        "cameras": list(cams),
-        "fps": CONTROL_FREQ,
-        "next_attempt": 0,
-        "attempts": 0,
-        "successes": 0,
-        "seeds_kept": [],
-        "seeds_failed": [],
-        "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
-    }
-    return ds, meta, True, 0
+    state = staging.read_state()
+    if state is not None and _settings_differ(state, spec, cams, seed):
+        raise ValueError(
+            f"{staging.dir} holds an unfinished {state['task']} collection (images={state['images']}, "
+            f"seed={state['base_seed']}): run that command again to finish it, or delete {staging.dir}"
+        )
+    meta = state or copy.deepcopy(target)
+    if meta is None:
+        meta = {
+            "task": spec.name, "variant": spec.variant, "expert": f"{cls.__module__}.{cls.__qualname__}",
+            "expert_version": cls.version, "base_seed": seed, "images": bool(cams), "cameras": list(cams),
+            "fps": CONTROL_FREQ, "next_attempt": 0, "attempts": 0, "successes": 0, "seeds_kept": [],
+            "seeds_failed": [], "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
+        }  # fmt: skip
+    for attempt in staging.staged():  # saved just before a crash, ahead of state.json
+        if seed + attempt in meta["seeds_kept"]:
+            continue
+        if attempt >= meta["next_attempt"]:
+            meta["attempts"] += attempt + 1 - meta["next_attempt"]
+            meta["next_attempt"] = attempt + 1
+        meta["successes"] += 1
+        meta["seeds_kept"] = sorted([*meta["seeds_kept"], seed + attempt])
+    return meta
 
 
 def collect(
@@ -153,16 +179,12 @@ def collect(
     """Collect successful expert episodes until the dataset at ``root`` holds ``episodes``.
 
     Returns the collection metadata (also in ``meta/actionflow_collect.json``), with
-    ``interrupted`` set when a signal stopped the run. See the module docstring.
+    ``interrupted`` set when a signal stopped the run, ``episodes`` the dataset's episode count
+    and ``recovered`` the notes of :meth:`Staging.recover`. See the module docstring.
     """
-    import gymnasium as gym
-    from tqdm import tqdm
-
-    import lerobot_actionflow.envs  # noqa: F401  (gym ids)
-    from lerobot_actionflow.data.features import default_repo_id, frame_from_obs, schema_features
-    from lerobot_actionflow.envs.tasks import get_task
+    from lerobot_actionflow.data.features import default_repo_id, schema_features
+    from lerobot_actionflow.envs.tasks import CONTROL_FREQ, get_task
     from lerobot_actionflow.experts import expert_class
-    from lerobot_actionflow.experts.rollout import run_episode
 
     spec = get_task(task)
     cls = expert_class(spec.name)  # fails early for a task without an expert
@@ -172,68 +194,80 @@ def collect(
     features = schema_features(spec.num_tokens, cams, (image_size, image_size), image_format)
     if episodes < 0:
         raise ValueError(f"--episodes must be >= 0, got {episodes}")
+    if root.exists() and not root.is_dir():
+        raise ValueError(f"--root {root} is a file, not a dataset folder: choose a folder")
+    staging = Staging(root, repo_id)
+    # The stop flag covers everything from here: a signal sets it, and the loop then stops at the
+    # next episode boundary; the staged episodes are merged below.
+    with _StopFlag() as flag, staging.locked():
+        notes = staging.recover(_target_meta)
+        target = _check_target(root, repo_id, spec, cams, seed, features)
+        meta = _run_meta(staging, target, spec, cls, cams, seed)
+        meta["expert_version"] = cls.version  # the version of the last run (a resumed set may mix)
+        meta["interrupted"] = False
+        if len(meta["seeds_kept"]) < episodes and not flag():
+            try:
+                _collect_episodes(staging, meta, spec, cls, cams, image_size, features, image_format,
+                                  episodes, max_attempts, progress, flag)  # fmt: skip
+            except BaseException:
+                meta["interrupted"] = True
+                with contextlib.suppress(Exception):  # else the next run merges the staged episodes
+                    staging.commit(_stamp(meta), target, features, CONTROL_FREQ, image_format == "video")
+                raise
+        meta["interrupted"] = flag()
+        if staging.commit(_stamp(meta), target, features, CONTROL_FREQ, image_format == "video"):
+            meta["episodes"] = check_dataset(root, repo_id, meta)
+        else:
+            meta["episodes"] = 0
+    meta["recovered"] = notes
+    return meta
+
+
+def _collect_episodes(staging, meta, spec, cls, cams, image_size, features, image_format, episodes,
+                      max_attempts, progress, flag) -> None:  # fmt: skip
+    """Run attempts until ``meta`` lists ``episodes`` kept seeds (or the attempts or a signal
+    stop it), staging each success and replacing ``state.json`` after each attempt."""
+    import gymnasium as gym
+    from tqdm import tqdm
+
+    import lerobot_actionflow.envs  # noqa: F401  (gym ids)
+    from lerobot_actionflow.data.features import frame_from_obs
+    from lerobot_actionflow.experts.rollout import run_episode
 
     env = gym.make(
         spec.gym_id, cameras=cams, image_height=image_size, image_width=image_size, render_mode=None
     )
-    expert = cls(env.unwrapped)
-    created, saved, ds, meta = False, 0, None, None
-    # The stop flag covers everything from here: a signal while the dataset is being opened or
-    # created is seen by the loop, which then saves nothing and cleans up below.
-    with _StopFlag() as flag:
-        try:
-            ds, meta, created, saved = _open_dataset(
-                root, repo_id, spec, cls, features, cams, seed, image_format
-            )
-            meta["expert_version"] = cls.version  # the version of the last run (a resumed set may mix)
-            meta["interrupted"] = False
-            bar = tqdm(
-                total=episodes, initial=min(saved, episodes), desc=spec.name, unit="ep", disable=not progress
-            )
-            new_attempts = 0
-            while saved < episodes and not flag():
-                if max_attempts is not None and new_attempts >= max_attempts:
-                    break
-                s = seed + meta["next_attempt"]
-                ep = run_episode(env, expert, s, stop=flag)
-                if ep.interrupted:
-                    break
-                meta["next_attempt"] += 1
-                meta["attempts"] += 1
-                new_attempts += 1
-                if not ep.success:
-                    meta["seeds_failed"].append(s)
-                    _write_meta(root, meta)
-                    bar.set_postfix(failed=len(meta["seeds_failed"]))
-                    continue
-                for obs, action in zip(ep.observations, ep.actions):
-                    ds.add_frame(frame_from_obs(obs, action, spec.description))
-                ds.save_episode()
-                saved += 1
+    try:
+        expert = cls(env.unwrapped)
+        saved, new_attempts = len(meta["seeds_kept"]), 0
+        staging.write_state(_stamp(meta))
+        bar = tqdm(
+            total=episodes, initial=min(saved, episodes), desc=spec.name, unit="ep", disable=not progress
+        )
+        while saved < episodes and not flag():
+            if max_attempts is not None and new_attempts >= max_attempts:
+                break
+            attempt = meta["next_attempt"]
+            ep = run_episode(env, expert, meta["base_seed"] + attempt, stop=flag)
+            if ep.interrupted:
+                break
+            if ep.success:
+                frames = [frame_from_obs(o, a, spec.description) for o, a in zip(ep.observations, ep.actions)]
+                staging.write_episode(attempt, frames)
                 meta["successes"] += 1
-                meta["seeds_kept"].append(s)
-                _write_meta(root, meta)
+                meta["seeds_kept"].append(meta["base_seed"] + attempt)
+                saved += 1
                 bar.update(1)
-            bar.close()
-            meta["interrupted"] = flag()
-        except BaseException:
-            if meta is not None:
-                meta["interrupted"] = True
-            raise
-        finally:
-            env.close()
-            if ds is not None:
-                with contextlib.suppress(Exception):
-                    if ds.has_pending_frames():
-                        ds.clear_episode_buffer()
-                ds.finalize()
-                if created and saved == 0:
-                    shutil.rmtree(root, ignore_errors=True)
-                    meta["removed"] = True
-                else:
-                    _write_meta(root, meta)
-    meta["episodes"] = saved
-    return meta
+            else:
+                meta["seeds_failed"].append(meta["base_seed"] + attempt)
+                bar.set_postfix(failed=len(meta["seeds_failed"]))
+            meta["next_attempt"] += 1
+            meta["attempts"] += 1
+            new_attempts += 1
+            staging.write_state(_stamp(meta))
+        bar.close()
+    finally:
+        env.close()
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -278,6 +312,8 @@ def main(argv: list[str] | None = None) -> int:
     except (ValueError, KeyError) as e:
         print(f"actionflow-collect: error: {e}", file=sys.stderr)
         return 2
+    for note in meta["recovered"]:
+        print(f"actionflow-collect: after an earlier crash: {note}", file=sys.stderr)
     rate = meta["successes"] / meta["attempts"] if meta["attempts"] else None
     print(
         f"{meta['task']}: {meta['episodes']} episodes in {args.root}; attempts {meta['attempts']}, "

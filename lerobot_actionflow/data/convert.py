@@ -11,8 +11,10 @@ entities the file lacks (:data:`~.robomimic.STATIC_ENTITIES`) are read from our 
 reset with seed 0.
 
 Errors raise ``ValueError`` naming the group, dataset or key (the CLI prints it and exits with
-status 2). The dataset is written to a temporary sibling folder and moved to ``--root`` only
-when every demo converted, so a failure leaves nothing behind. ``--root`` must not exist.
+status 2); a NaN / inf in any input array, a zero quaternion, or an output that overflows float32
+is named with the file, demo, key and first bad frame. The dataset is written to a temporary
+sibling folder and moved to ``--root`` only when every demo converted, so a failure leaves
+nothing behind. ``--root`` must not exist.
 ``meta/actionflow_convert.json`` records the source, task, action mode, delta scales, demos and
 their lengths.
 """
@@ -63,6 +65,16 @@ def static_poses(task: str, names: tuple[str, ...]) -> dict[str, np.ndarray]:
     return {n: np.asarray(obs[ENV_POSES][1 + order.index(n)], dtype=np.float64) for n in names}
 
 
+def check_finite(arrays: dict[str, np.ndarray], where: str) -> None:
+    """Raise ``ValueError`` naming the key and first frame of a non-finite schema value (finite
+    inputs can overflow float32, e.g. a position of 1e39)."""
+    for key, a in arrays.items():
+        bad = ~np.isfinite(a.reshape(len(a), -1)).all(axis=1)
+        if bad.any():
+            t = int(np.flatnonzero(bad)[0])
+            raise ValueError(f"{where}: output {key} is non-finite (NaN/inf) at frame {t}: {a[t].tolist()}")
+
+
 def convert(
     input_path: str | Path,
     root: str | Path,
@@ -80,6 +92,8 @@ def convert(
     input_path, root = Path(input_path), Path(root)
     if root.exists():
         raise ValueError(f"--root {root} already exists: choose a new folder")
+    if input_path.is_dir():
+        raise ValueError(f"input {input_path} is a directory: give the HDF5 file")
     if not input_path.is_file():
         raise ValueError(f"input file {input_path} does not exist")
     try:
@@ -108,8 +122,12 @@ def convert(
             lengths = []
             try:
                 for name in plan.demos:
-                    demo = read_demo(data, name, plan.task, static)
-                    arrays = schema_arrays(demo, plan.action_mode, plan.delta_scales)
+                    try:
+                        demo = read_demo(data, name, plan.task, static)
+                        arrays = schema_arrays(demo, plan.action_mode, plan.delta_scales)
+                        check_finite(arrays, f"{DATA_GROUP}/{name}")
+                    except ValueError as e:
+                        raise ValueError(f"{input_path}: {e}") from None
                     t_len = arrays[ACTION_KEY].shape[0]
                     for t in range(t_len):
                         ds.add_frame({**{k: v[t] for k, v in arrays.items()}, "task": spec.description})

@@ -157,16 +157,21 @@ def dataset(
         )
     if length is not None and a.shape[0] != length:
         raise ValueError(f"{where}/{name}: length {a.shape[0]} differs from the demo's {length} actions")
-    if not np.all(np.isfinite(a)):
-        raise ValueError(f"{where}/{name}: non-finite values")
+    bad = ~np.isfinite(a)
+    if bad.any():
+        t = int(np.argwhere(bad)[0][0])
+        raise ValueError(f"{where}/{name}: non-finite value (NaN/inf) at frame {t}: {a[t].tolist()}")
     return a
 
 
 def quaternions(parent, name: str, where: str, length: int) -> np.ndarray:
     """``parent[name]``: scalar-last quaternions ``(T, 4)``, none zero, returned scalar-first."""
     q = dataset(parent, name, where, (4,), length)
-    if (np.linalg.norm(q, axis=-1) < 1e-12).any():
-        raise ValueError(f"{where}/{name}: zero quaternions")
+    norm = np.linalg.norm(q, axis=-1)
+    bad = ~((norm >= 1e-12) & np.isfinite(norm))  # zero, or too large to normalise
+    if bad.any():
+        t = int(np.flatnonzero(bad)[0])
+        raise ValueError(f"{where}/{name}: zero quaternions (degenerate) at frame {t}: {q[t].tolist()}")
     return xyzw_to_wxyz(q)
 
 

@@ -82,6 +82,13 @@ class ActionFlowEnvConfig(EnvConfig):
             raise ValueError(
                 f"fps must be the control rate {CONTROL_FREQ} of the robosuite tasks, got {self.fps}"
             )
+        for name in ("scene_move_robot", "terminate_on_success"):
+            if not isinstance(getattr(self, name), bool):  # a string like "false" would be truthy
+                raise TypeError(f"{name} must be a bool, got {getattr(self, name)!r}")
+        sizes = ("observation_height", "observation_width", "visualization_height", "visualization_width")
+        for name in sizes:
+            if int(getattr(self, name)) < 1:
+                raise ValueError(f"{name} must be >= 1 pixel, got {getattr(self, name)}")
         if self.episode_length is None:
             self.episode_length = spec.episode_length
         shapes = feature_shapes(spec.num_tokens)

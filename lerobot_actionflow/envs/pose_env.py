@@ -132,6 +132,9 @@ class PoseTokenEnv(gym.Env):
         self.image_size = (int(image_height), int(image_width))
         self.render_camera = render_camera
         self.render_size = (int(render_height), int(render_width))
+        for name, size in (("image", self.image_size), ("render", self.render_size)):
+            if min(size) < 1:
+                raise ValueError(f"{name}_height and {name}_width must be >= 1 pixel, got {size}")
         self.scene_transform = SceneTransform.coerce(scene_transform)
         if self.scene_transform is not None and not self.spec_task.scene_transform:
             raise ValueError(f"task {self.task} does not support a scene transform (fixed goal in the arena)")
@@ -255,7 +258,8 @@ class PoseTokenEnv(gym.Env):
             raise ValueError(
                 f"action must have shape ({ACTION_DIM},) = [x, y, z, rot6d (6), gripper], got shape {a.shape}"
             )
-        if not math.isfinite(a.sum()):  # one reduction; NaN/inf anywhere makes the sum non-finite
+        # One reduction first: NaN/inf anywhere makes the sum non-finite (so can large finite entries).
+        if not math.isfinite(a.sum()) and not np.isfinite(a).all():
             bad = np.flatnonzero(~np.isfinite(a)).tolist()
             raise ValueError(f"action has non-finite (NaN/inf) entries at indices {bad}: {a.tolist()}")
         out = np.empty(7)

@@ -65,11 +65,13 @@ class SceneTransform:
     move_robot: bool = False
 
     def __post_init__(self):
+        if not isinstance(self.move_robot, bool | np.bool_):  # "false" would be truthy
+            raise TypeError(f"scene transform move_robot must be a bool, got {self.move_robot!r}")
         ylo, yhi = _as_range(self.yaw, "yaw")
         max_yaw = MAX_ROBOT_YAW if self.move_robot else math.pi
         if ylo < -max_yaw - 1e-9 or yhi > max_yaw + 1e-9:
             raise ValueError(
-                f"scene transform yaw {self.yaw!r} outside [-{max_yaw:.4f}, {max_yaw:.4f}] "
+                f"scene transform yaw {self.yaw!r} outside [-{max_yaw!r}, {max_yaw!r}] "
                 f"(move_robot={self.move_robot})"
             )
         for name in ("x", "y"):

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from lerobot_actionflow.data.collect import main
+from lerobot_actionflow.data.staging import staging_dir
 from lerobot_actionflow.schema import ACTION_KEY, POSES_KEY, STATE_KEY, feature_shapes
 from tests.data.conftest import REPO_ID, cli_env, collect_command, run_collect
 
@@ -83,7 +84,7 @@ def test_rerun_with_other_settings_is_refused(lift_copy, capsys):
 
 
 def _wait_for_first_episode(proc, root, timeout=150.0):
-    meta = root / "meta" / "actionflow_collect.json"
+    meta = staging_dir(root) / "state.json"  # the run's state, replaced after every attempt
     t0 = time.time()
     while time.time() - t0 < timeout:
         if proc.poll() is not None:
@@ -123,18 +124,18 @@ def test_sigint_after_first_episode_leaves_a_loadable_dataset(tmp_path):
     ds[len(ds) - 1]  # the last frame of the last episode reads
 
 
-def test_sigint_before_any_episode_removes_the_folder(tmp_path):
+def test_sigint_before_any_episode_leaves_no_folder(tmp_path):
     root = tmp_path / "lift"
 
-    def dataset_created(proc):  # the dataset exists, no episode saved yet
+    def collecting(proc):  # the run has begun collecting, no episode saved yet
         t0 = time.time()
-        while not (root / "meta" / "info.json").exists():
-            assert proc.poll() is None and time.time() - t0 < 120, "collect did not create the dataset"
+        while not (staging_dir(root) / "state.json").exists():
+            assert proc.poll() is None and time.time() - t0 < 120, "collect did not start collecting"
             time.sleep(0.01)
 
-    proc = _interrupted_collect(root, 5, dataset_created)
+    proc = _interrupted_collect(root, 5, collecting)
     assert proc.returncode == 130
-    assert not root.exists()
+    assert not root.exists() and not staging_dir(root).exists()
 
 
 def test_unknown_task_without_expert_fails_cleanly(tmp_path, capsys):

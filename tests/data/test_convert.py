@@ -114,7 +114,7 @@ def test_zero_quaternion_names_it_and_writes_nothing(tmp_path):
     with h5py.File(src, "a") as f:
         f["data/demo_1/obs/cube_quat"][2] = 0.0
     root = tmp_path / "out"
-    with pytest.raises(ValueError, match=r"data/demo_1/obs/cube_quat: zero quaternions"):
+    with pytest.raises(ValueError, match=r"data/demo_1/obs/cube_quat: zero quaternions .*at frame 2"):
         convert(src, root)
     _assert_nothing_written(tmp_path, root)
 
@@ -291,3 +291,39 @@ def test_conversion_matches_the_simulator_and_its_controller(tmp_path, monkeypat
         convert(src, tmp_path / name)
         bad = _errors_against_simulator(_episode(_load(tmp_path / name), 0), rec)
         assert bad["eef_rot"] > 0.5 and bad["target_rot"] > 0.5, (name, bad)
+
+
+@pytest.mark.parametrize("value", [np.nan, np.inf, -np.inf])
+@pytest.mark.parametrize(
+    "key", ["obs/robot0_eef_pos", "obs/robot0_eef_quat", "obs/cube_pos", "obs/robot0_gripper_qpos", "actions"]
+)
+def test_non_finite_input_names_file_demo_key_and_frame_and_writes_nothing(tmp_path, key, value):
+    src = tmp_path / "lift.hdf5"
+    write_lift_hdf5(src, demos=2, length=5)
+    with h5py.File(src, "a") as f:
+        d = f[f"data/demo_1/{key}"]
+        row = d[3]
+        row[-1] = value
+        d[3] = row
+    root = tmp_path / "out"
+    with pytest.raises(ValueError, match=rf"{src}: data/demo_1/{key}: .*frame 3") as e:
+        convert(src, root)
+    assert "NaN/inf" in str(e.value) or "degenerate" in str(e.value)
+    _assert_nothing_written(tmp_path, root)
+
+
+def test_position_overflowing_float32_is_refused(tmp_path):
+    src = tmp_path / "lift.hdf5"
+    write_lift_hdf5(src, demos=1, length=5)
+    with h5py.File(src, "a") as f:
+        f["data/demo_0/obs/cube_pos"][1] = [1e39, 0.0, 0.0]  # finite in float64, inf in float32
+    root = tmp_path / "out"
+    with pytest.raises(ValueError, match=rf"{src}: data/demo_0: output .* non-finite .*frame 1"):
+        convert(src, root)
+    _assert_nothing_written(tmp_path, root)
+
+
+def test_directory_input_is_named_a_directory(tmp_path):
+    (tmp_path / "in.hdf5").mkdir()
+    with pytest.raises(ValueError, match="is a directory"):
+        convert(tmp_path / "in.hdf5", tmp_path / "out")
