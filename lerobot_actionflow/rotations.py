@@ -26,6 +26,9 @@ from scipy.spatial.transform import Rotation
 #: Smallest norm accepted for either 3-vector of a 6D rotation, and smallest norm of the second
 #: one after removing its component along the first (a parallel pair is no rotation).
 ROT6D_EPS = 1e-6
+#: Columns with an entry above this are rescaled before Gram-Schmidt (their squared norm would
+#: overflow float64 beyond ~1e154).
+ROT6D_RESCALE = 1e100
 
 
 def _batched(fn, x: np.ndarray, tail: int, out_tail: tuple[int, ...]) -> np.ndarray:
@@ -109,9 +112,11 @@ def matrix_to_rotation_6d(r: np.ndarray) -> np.ndarray:
 
 def rotation_6d_to_matrix(d6: np.ndarray) -> np.ndarray:
     """Gram-Schmidt of 6D rotations ``(..., 6) -> (..., 3, 3)``: ``b1 = a1 / |a1|``,
-    ``b2 = (a2 - (b1.a2) b1) / |.|``, ``b3 = b1 x b2``, as columns. Each column is first divided
-    by its largest absolute entry (the result is scale-free), so entries up to the float64
-    maximum do not overflow the norms; the (near-)zero tests apply to the unscaled norms.
+    ``b2 = (a2 - (b1.a2) b1) / |.|``, ``b3 = b1 x b2``, as columns. A column with an entry above
+    :data:`ROT6D_RESCALE` is first divided by its largest absolute entry (the result is
+    scale-free), so entries up to the float64 maximum do not overflow the norms; other columns are
+    used as they are, so ordinary inputs round exactly as plain Gram-Schmidt. The (near-)zero
+    tests apply to the unscaled norms.
 
     Raises:
         ValueError: if either vector is (nearly) zero or the two are (nearly) parallel.
@@ -122,7 +127,8 @@ def rotation_6d_to_matrix(d6: np.ndarray) -> np.ndarray:
     a1, a2 = d6[..., :3], d6[..., 3:6]
     m1 = np.abs(a1).max(axis=-1, keepdims=True)
     m2 = np.abs(a2).max(axis=-1, keepdims=True)
-    a1, a2 = a1 / np.where(m1 > 0, m1, 1.0), a2 / np.where(m2 > 0, m2, 1.0)
+    m1, m2 = np.where(m1 > ROT6D_RESCALE, m1, 1.0), np.where(m2 > ROT6D_RESCALE, m2, 1.0)
+    a1, a2 = a1 / m1, a2 / m2
     n1 = np.linalg.norm(a1, axis=-1, keepdims=True)
     if (n1 * m1 < ROT6D_EPS).any():
         raise ValueError(f"6D rotation has a (near) zero first column: {d6.tolist()}")
@@ -141,8 +147,12 @@ def _rotation_6d_to_matrix_one(d6: np.ndarray) -> np.ndarray:
     """:func:`rotation_6d_to_matrix` of one ``(6,)`` vector in scalar arithmetic: the env converts
     one action per step, where the batched array code costs ~10x more (microseconds matter there)."""
     ax, ay, az, bx, by, bz = d6.tolist()
-    m1, m2 = max(abs(ax), abs(ay), abs(az)) or 1.0, max(abs(bx), abs(by), abs(bz)) or 1.0
-    ax, ay, az, bx, by, bz = ax / m1, ay / m1, az / m1, bx / m2, by / m2, bz / m2
+    m1, m2 = max(abs(ax), abs(ay), abs(az)), max(abs(bx), abs(by), abs(bz))
+    m1, m2 = (m1 if m1 > ROT6D_RESCALE else 1.0), (m2 if m2 > ROT6D_RESCALE else 1.0)
+    if m1 != 1.0:
+        ax, ay, az = ax / m1, ay / m1, az / m1
+    if m2 != 1.0:
+        bx, by, bz = bx / m2, by / m2, bz / m2
     n1 = math.sqrt(ax * ax + ay * ay + az * az)
     if n1 * m1 < ROT6D_EPS:
         raise ValueError(f"6D rotation has a (near) zero first column: {d6.tolist()}")

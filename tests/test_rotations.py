@@ -97,3 +97,11 @@ def test_degenerate_rot6d_raises(d6):
 def test_degenerate_quaternion_raises(q):
     with pytest.raises(ValueError, match="quaternion"):
         R.quaternion_to_matrix(q)
+
+
+@pytest.mark.parametrize("scale", [1e-3, 1e155, 1e300])
+def test_rotation_6d_is_scale_free_up_to_the_float_range(scale, rotations):
+    """Huge columns would overflow the squared norms (a zero matrix, a 180 deg command)."""
+    d6 = R.matrix_to_rotation_6d(rotations.numpy()[:4])
+    for x in (d6, d6[0]):
+        np.testing.assert_allclose(R.rotation_6d_to_matrix(scale * x), R.rotation_6d_to_matrix(x), atol=1e-12)
