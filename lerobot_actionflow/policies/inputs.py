@@ -24,7 +24,7 @@ from torch import Tensor
 from lerobot_actionflow.geometry import check_finite
 
 
-def _shape_str(lead: Sequence[str | int], shape: Sequence[int]) -> str:
+def _shape_str(lead: Sequence[str | int], shape: Sequence[int | str]) -> str:
     return "(" + ", ".join(str(d) for d in (*lead, *shape)) + ")"
 
 
@@ -41,7 +41,7 @@ def describe(x: object) -> str:
 
 def check_observation(
     batch: Mapping[str, object],
-    features: Mapping[str, Sequence[int]],
+    features: Mapping[str, Sequence[int | str]],
     n_obs_steps: int,
     with_time: bool,
     dtype: torch.dtype,
@@ -50,7 +50,8 @@ def check_observation(
 
     Args:
         batch: the inputs; keys other than ``features`` are ignored.
-        features: feature key -> per-step shape (from the config's input features).
+        features: feature key -> per-step shape (from the config's input features); a ``str``
+            entry (e.g. ``"H"``) names a dimension of any size.
         n_obs_steps: the length of the history.
         with_time: tensors are ``(B, n_obs_steps, *shape)`` (training and
             ``predict_action_chunk``; ``(B, *shape)`` is also accepted when ``n_obs_steps == 1``),
@@ -86,7 +87,9 @@ def check_observation(
             raise ValueError(f"input feature '{key}' has {describe(x)}, expected {expected}{hint}")
         if with_time and n_obs_steps == 1 and x.ndim == len(shape) + 1:
             x = x.unsqueeze(1)  # a single observation step may come without its time axis
-        ok = x.ndim == len(lead) + len(shape) and tuple(x.shape[len(lead) :]) == shape
+        ok = x.ndim == len(lead) + len(shape) and all(
+            isinstance(want, str) or want == got for want, got in zip(shape, x.shape[len(lead) :])
+        )
         if not ok or (with_time and x.shape[1] != n_obs_steps):
             raise ValueError(f"input feature '{key}' has {describe(batch[key])}, expected {expected}")
         if first is None:

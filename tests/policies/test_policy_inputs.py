@@ -145,3 +145,15 @@ def test_a_refused_observation_leaves_the_history_unchanged():
         bad[key] = bad[key].clone()
         bad[key][0, ...] = float("nan")
         torch.testing.assert_close(_second_action(policy, history, bad), _second_action(policy, history))
+
+
+def test_actionflow_images_uint8_refused_with_a_hint_any_size_accepted():
+    policy = _actionflow(images=("wrist",))
+    history = _history(policy)
+    key = "observation.images.wrist"
+    pixels = {**history, key: (history[key] * 255).to(torch.uint8)}
+    expected = rf"'{key}' has shape \(2, 2, 3, 32, 32\), dtype torch\.uint8, expected \(B, 2, 3, H, W\)"
+    with pytest.raises(ValueError, match=expected + r".*run the policy's preprocessor"):
+        policy.predict_action_chunk(pixels)
+    larger = {**history, key: torch.rand(2, 2, 3, 40, 48)}  # the encoder resizes to image_size
+    assert policy.predict_action_chunk(larger).shape == (2, 8, 10)

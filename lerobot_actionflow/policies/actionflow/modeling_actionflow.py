@@ -70,8 +70,8 @@ class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
         self._observation_shapes = {POSES_KEY: tuple(config.poses_feature.shape)}
         if config.num_scalars:
             self._observation_shapes[STATE_KEY] = tuple(config.robot_state_feature.shape)
-        for key in self.image_keys:
-            self._observation_shapes[key] = tuple(config.image_features[key].shape)
+        for key in self.image_keys:  # any H, W: the image encoder resizes to config.image_size
+            self._observation_shapes[key] = (config.image_features[key].shape[0], "H", "W")
         self._compiled_sampler = None
         self.reset()
 
