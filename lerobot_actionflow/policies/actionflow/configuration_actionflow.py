@@ -9,6 +9,14 @@ from lerobot.configs.types import FeatureType, NormalizationMode
 from lerobot.optim.optimizers import AdamWConfig
 from lerobot.optim.schedulers import CosineAnnealingWithWarmupSchedulerConfig
 
+from lerobot_actionflow.policies.config_errors import (
+    require,
+    require_choice,
+    require_ints,
+    require_non_negative,
+    require_positive,
+    require_probability,
+)
 from lerobot_actionflow.schema import (
     ACTION_DIM,
     ACTION_KEY,
@@ -131,33 +139,61 @@ class ActionflowConfig(PreTrainedConfig):
 
     def __post_init__(self):
         super().__post_init__()
-        if self.n_obs_steps < 1 or self.horizon < 1:
-            raise ValueError(f"n_obs_steps and horizon must be >= 1, got {self.n_obs_steps}, {self.horizon}")
-        if not 1 <= self.n_action_steps <= self.horizon:
-            raise ValueError(
-                f"n_action_steps must be in 1..horizon={self.horizon}, got {self.n_action_steps}"
-            )
-        if self.num_inference_steps < 1:
-            raise ValueError(f"num_inference_steps must be >= 1, got {self.num_inference_steps}")
-        if self.time_spacing not in ("uniform", "exponential"):
-            raise ValueError(f"time_spacing must be 'uniform' or 'exponential', got {self.time_spacing!r}")
-        if self.noise_rotation not in ("uniform", "concentrated"):
-            raise ValueError(
-                f"noise_rotation must be 'uniform' or 'concentrated', got {self.noise_rotation!r}"
-            )
-        if self.train_time_distribution not in ("uniform", "beta"):
-            raise ValueError(
-                f"train_time_distribution must be 'uniform' or 'beta', got {self.train_time_distribution!r}"
-            )
+        self.validate_values()
+
+    def validate_values(self) -> None:
+        """Refuse values the policy cannot work with (:class:`PolicyConfigError`, a ``ValueError``,
+        whose message ``lerobot-train`` prints; see :mod:`lerobot_actionflow.policies.config_errors`).
+        """
+        require_ints(self, ("n_obs_steps", "horizon", "n_action_steps"))
+        require(
+            self.n_action_steps <= self.horizon,
+            f"`n_action_steps` must be in 1..horizon={self.horizon}, got {self.n_action_steps}",
+        )
+        no_obs = " (the actions would not depend on the observation)"
+        require_ints(self, ("num_layers", "dim", "num_heads", "head_dim"), why=no_obs)
+        require(self.dim % 2 == 0, f"`dim` must be even (sinusoidal time embedding), got {self.dim}")
+        require_ints(self, ("num_query_points", "num_value_points"))
+        require_positive(self, ("mlp_ratio", "translation_scale", "noise_sigma", "rotation_tolerance"))
+        require_probability(self, ("dropout",))
+        require_choice(self, "adaptation_frame", ("eef", "world"))
+        require(
+            not (self.squash_translations and self.adaptation_frame == "world"),
+            "`squash_translations` needs adaptation_frame='eef': tanh squashing of world-frame "
+            "translations would break equivariance",
+        )
+        require_choice(self, "noise_rotation", ("uniform", "concentrated"))
+        require_positive(self, ("noise_kappa",))
+        require_ints(self, ("num_inference_steps",))
+        require_choice(self, "time_spacing", ("uniform", "exponential"))
+        require_positive(self, ("time_spacing_rate",))
+        require_choice(self, "train_time_distribution", ("uniform", "beta"))
+        require(
+            len(self.train_time_beta) == 2 and all(b > 0 for b in self.train_time_beta),
+            f"`train_time_beta` must be two numbers > 0, got {self.train_time_beta!r}",
+        )
+        weights = ("loss_weight_translation", "loss_weight_rotation", "loss_weight_gripper")
+        require_non_negative(self, weights)
+        require(any(getattr(self, w) > 0 for w in weights), f"at least one of {weights} must be > 0")
+        require(
+            all(isinstance(i, int) and i >= 0 for i in self.state_scalar_indices),
+            f"`state_scalar_indices` must be indices >= 0, got {self.state_scalar_indices!r}",
+        )
+        require(
+            all(isinstance(e, int) and e >= 0 for e in self.camera_entities),
+            f"`camera_entities` must be entity indices >= 0, got {self.camera_entities!r}",
+        )
+        require(
+            self.image_size is None or (len(self.image_size) == 2 and min(self.image_size) >= 1),
+            f"`image_size` must be (height, width) >= 1, got {self.image_size!r}",
+        )
         for kind in ("STATE", "ACTION"):
             mode = self.normalization_mapping.get(kind, NormalizationMode.IDENTITY)
-            if mode is not NormalizationMode.IDENTITY:
-                raise ValueError(
-                    f"normalization_mapping['{kind}'] must be IDENTITY for actionflow, got {mode}: "
-                    "observation.poses and action are poses, and normalising them breaks SE(3) equivariance"
-                )
-        if self.noise_sigma <= 0:
-            raise ValueError(f"noise_sigma must be > 0, got {self.noise_sigma}")
+            require(
+                mode is NormalizationMode.IDENTITY,
+                f"normalization_mapping['{kind}'] must be IDENTITY for actionflow, got {mode}: "
+                "observation.poses and action are poses, and normalising them breaks SE(3) equivariance",
+            )
 
     # -- LeRobot hooks -------------------------------------------------------------------------
     @property

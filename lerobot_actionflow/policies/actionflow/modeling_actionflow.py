@@ -24,11 +24,13 @@ from lerobot_actionflow.geometry import check_finite, check_quaternion, quaterni
 from lerobot_actionflow.nn import ActionFlowNetwork, IPASize, ObservationTokens, PoseAdaptation
 from lerobot_actionflow.nn.image_encoder import ResNet18Encoder
 from lerobot_actionflow.policies.actionflow.configuration_actionflow import ActionflowConfig
-from lerobot_actionflow.schema import ACTION_DIM, ACTION_KEY, POSE7_DIM, POSES_KEY, STATE_KEY
+from lerobot_actionflow.policies.inputs import check_num_inference_steps, check_observation
+from lerobot_actionflow.policies.loading import StrictLoading
+from lerobot_actionflow.schema import ACTION_DIM, ACTION_KEY, POSES_KEY, STATE_KEY
 from lerobot_actionflow.schema.tensors import action_to_pose, pose_to_action
 
 
-class ActionflowPolicy(PreTrainedPolicy):
+class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
     config_class = ActionflowConfig
     name = "actionflow"
 
@@ -64,6 +66,12 @@ class ActionflowPolicy(PreTrainedPolicy):
                 config.adaptation_frame, config.translation_scale, config.squash_translations
             ),
         )
+        #: Per-step shape of every observation feature the policy reads.
+        self._observation_shapes = {POSES_KEY: tuple(config.poses_feature.shape)}
+        if config.num_scalars:
+            self._observation_shapes[STATE_KEY] = tuple(config.robot_state_feature.shape)
+        for key in self.image_keys:  # any H, W: the image encoder resizes to config.image_size
+            self._observation_shapes[key] = (config.image_features[key].shape[0], "H", "W")
         self._compiled_sampler = None
         self.reset()
 
@@ -84,7 +92,7 @@ class ActionflowPolicy(PreTrainedPolicy):
         ``action`` ``(B, horizon, 10)``; returns the loss and its translation / rotation /
         gripper terms."""
         cfg = self.config
-        obs = self._observation_tokens(batch)
+        obs = self._observation_tokens(self.check_observation(batch, with_time=True))
         action = _require(batch, ACTION_KEY)
         b = action.shape[0]
         if action.shape[1:] != (cfg.horizon, ACTION_DIM):
@@ -139,17 +147,28 @@ class ActionflowPolicy(PreTrainedPolicy):
             batch: the observation history ``(B, n_obs_steps, ...)``, oldest first (or
                 ``(B, ...)`` when ``n_obs_steps == 1``).
             noise: initial noise in the EEF frame (drawn if None).
-            num_inference_steps: Euler steps K (default: the config's); no retraining needed.
+            num_inference_steps: Euler steps K >= 1 (default: the config's); no retraining needed.
+
+        Raises:
+            ValueError: a bad observation (:meth:`check_observation`) or K < 1.
         """
+        return self._predict(self.check_observation(batch, with_time=True), noise, num_inference_steps)
+
+    def _predict(
+        self, obs: dict[str, Tensor], noise: se3_flow.LocalNoise | None, num_inference_steps: int | None
+    ) -> Tensor:
+        """:meth:`predict_action_chunk` on an observation history already checked."""
         cfg = self.config
-        obs = self._observation_tokens(batch)
+        k = check_num_inference_steps(
+            cfg.num_inference_steps if num_inference_steps is None else num_inference_steps
+        )
+        obs = self._observation_tokens(obs)
         b = obs.p.shape[0]
         if noise is None:
             noise = se3_flow.draw_local_noise(
                 b, cfg.horizon, cfg.noise_sigma, cfg.noise_rotation, cfg.noise_kappa, dtype=obs.p.dtype,
                 device=obs.p.device,
             )  # fmt: skip
-        k = num_inference_steps or cfg.num_inference_steps
         times = schedules.make_time_grid(
             k, cfg.time_spacing, cfg.time_spacing_rate, obs.p.dtype, obs.p.device
         )
@@ -198,11 +217,12 @@ class ActionflowPolicy(PreTrainedPolicy):
     def select_action(self, batch: dict[str, Tensor], noise: se3_flow.LocalNoise | None = None) -> Tensor:
         """One action ``(B, 10)``: keeps ``n_obs_steps`` of history (the first observation
         repeated at the start) and re-plans a chunk once ``n_action_steps`` have been used."""
-        batch = {k: v for k, v in batch.items() if k in self._queues and k != ACTION_KEY}
-        self._queues = populate_queues(self._queues, batch)
+        # Checked before it enters the history, so that a refused observation leaves no trace.
+        step = self.check_observation(batch, with_time=False)
+        self._queues = populate_queues(self._queues, step)
         if not self._queues[ACTION_KEY]:
-            stacked = {k: torch.stack(list(q), dim=1) for k, q in self._queues.items() if k != ACTION_KEY}
-            actions = self.predict_action_chunk(stacked, noise=noise)
+            history = {k: torch.stack(list(q), dim=1) for k, q in self._queues.items() if k != ACTION_KEY}
+            actions = self._predict(history, noise, None)
             self._queues[ACTION_KEY].extend(actions[:, : self.config.n_action_steps].transpose(0, 1))
         return self._queues[ACTION_KEY].popleft()
 
@@ -222,32 +242,40 @@ class ActionflowPolicy(PreTrainedPolicy):
         x1 = se3_flow.euler_sample(velocity, x0, times)
         return pose_to_action(x1.r, x1.p, x1.g.clamp(-1.0, 1.0))
 
-    def _observation_tokens(self, batch: dict[str, Tensor]) -> ObservationTokens:
-        """Validate the observation part of a batch and turn it into network inputs."""
+    def check_observation(self, batch: dict[str, Tensor], with_time: bool = True) -> dict[str, Tensor]:
+        """Every check of the observations the policy reads, in one place.
+
+        ``with_time``: tensors are ``(B, n_obs_steps, ...)`` (``forward``,
+        ``predict_action_chunk``), else ``(B, ...)`` (one step, ``select_action``). Shapes come
+        from the config's input features; floating inputs are cast to the policy's dtype (see
+        :mod:`lerobot_actionflow.policies.inputs`). The quaternions of ``observation.poses`` must
+        be unit within ``rotation_tolerance`` and are returned normalised.
+
+        Raises:
+            ValueError: naming the feature, the expected shape and dtype, and what was given.
+        """
+        obs = check_observation(
+            batch, self._observation_shapes, self.config.n_obs_steps, with_time, self._dtype
+        )
+        poses = obs[POSES_KEY]
+        quat = check_quaternion(poses[..., 3:], atol=self.config.rotation_tolerance, name=POSES_KEY)
+        obs[POSES_KEY] = torch.cat([poses[..., :3], quat], dim=-1)
+        return obs
+
+    @property
+    def _dtype(self) -> torch.dtype:
+        return next(self.network.parameters()).dtype
+
+    def _observation_tokens(self, obs: dict[str, Tensor]) -> ObservationTokens:
+        """Network inputs from a checked observation history (:meth:`check_observation`)."""
         cfg = self.config
-        poses = _require(batch, POSES_KEY)
-        if poses.ndim == 3 and cfg.n_obs_steps == 1:
-            poses = poses[:, None]
-        expected = f"(B, {cfg.n_obs_steps}, {self.num_entities}, {POSE7_DIM})"
-        if poses.ndim != 4 or poses.shape[1:] != (cfg.n_obs_steps, self.num_entities, POSE7_DIM):
-            raise ValueError(f"'{POSES_KEY}' must have shape {expected}, got {tuple(poses.shape)}")
-        check_finite(poses, POSES_KEY)
-        quat = check_quaternion(poses[..., 3:], atol=cfg.rotation_tolerance, name=POSES_KEY)
-        r, p = quaternion_to_matrix(quat), poses[..., :3]
+        poses = obs[POSES_KEY]  # (B, S, N, 7), unit quaternions
+        r, p = quaternion_to_matrix(poses[..., 3:]), poses[..., :3]
         b = poses.shape[0]
 
         scalars = None
         if cfg.num_scalars:
-            state = _require(batch, STATE_KEY)
-            if state.ndim == 2 and cfg.n_obs_steps == 1:
-                state = state[:, None]
-            if state.ndim != 3 or state.shape[:2] != (b, cfg.n_obs_steps):
-                raise ValueError(
-                    f"'{STATE_KEY}' must have shape (B, {cfg.n_obs_steps}, D) with B={b}, "
-                    f"got {tuple(state.shape)}"
-                )
-            check_finite(state, STATE_KEY)
-            eef_scalars = state[..., list(cfg.state_scalar_indices)] * cfg.state_scalar_scale
+            eef_scalars = obs[STATE_KEY][..., list(cfg.state_scalar_indices)] * cfg.state_scalar_scale
             scalars = torch.zeros(
                 b, cfg.n_obs_steps, self.num_entities, cfg.num_scalars, dtype=r.dtype, device=r.device
             )
@@ -255,19 +283,10 @@ class ActionflowPolicy(PreTrainedPolicy):
 
         image_features = None
         if self.image_keys:
-            feats = []
-            for key in self.image_keys:
-                img = _require(batch, key)
-                if img.ndim == 4 and cfg.n_obs_steps == 1:
-                    img = img[:, None]
-                c = cfg.image_features[key].shape[0]
-                if img.ndim != 5 or img.shape[:3] != (b, cfg.n_obs_steps, c):
-                    raise ValueError(
-                        f"'{key}' must have shape (B, {cfg.n_obs_steps}, {c}, H, W), got {tuple(img.shape)}"
-                    )
-                check_finite(img, key)
-                f = self.image_encoder(img.flatten(0, 1)).view(b, cfg.n_obs_steps, -1)
-                feats.append(f)
+            feats = [
+                self.image_encoder(obs[key].flatten(0, 1)).view(b, cfg.n_obs_steps, -1)
+                for key in self.image_keys
+            ]
             image_features = torch.stack(feats, 2)
         return ObservationTokens(r, p, scalars, image_features)
 

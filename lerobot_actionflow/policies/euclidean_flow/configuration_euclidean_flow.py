@@ -25,6 +25,14 @@ from lerobot.configs.types import FeatureType
 from lerobot.optim import AdamConfig, DiffuserSchedulerConfig
 from lerobot.utils.constants import ACTION
 
+from lerobot_actionflow.policies.config_errors import (
+    require,
+    require_choice,
+    require_ints,
+    require_positive,
+    require_probability,
+)
+
 BACKBONES = ("transformer", "unet")
 TIME_SPACINGS = ("uniform", "exponential")
 TRAIN_TIME_DISTRIBUTIONS = ("uniform", "beta")
@@ -112,44 +120,72 @@ class EuclideanFlowConfig(PreTrainedConfig):
 
     def __post_init__(self):
         super().__post_init__()
-        if self.backbone not in BACKBONES:
-            raise ValueError(f"`backbone` must be one of {BACKBONES}, got {self.backbone!r}")
-        if self.time_spacing not in TIME_SPACINGS:
-            raise ValueError(f"`time_spacing` must be one of {TIME_SPACINGS}, got {self.time_spacing!r}")
-        if self.train_time_distribution not in TRAIN_TIME_DISTRIBUTIONS:
-            raise ValueError(
-                f"`train_time_distribution` must be one of {TRAIN_TIME_DISTRIBUTIONS}, "
-                f"got {self.train_time_distribution!r}"
-            )
-        if not isinstance(self.num_inference_steps, int) or self.num_inference_steps < 1:
-            raise ValueError(
-                f"`num_inference_steps` must be an integer >= 1, got {self.num_inference_steps!r}"
-            )
-        for name in ("n_obs_steps", "horizon", "n_action_steps"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"`{name}` must be >= 1, got {getattr(self, name)}")
-        if self.n_action_steps > self.horizon - self.n_obs_steps + 1:
-            raise ValueError(
-                "`n_action_steps` must be <= horizon - n_obs_steps + 1 (actions start at the oldest "
-                f"observation); got {self.n_action_steps=}, {self.horizon=}, {self.n_obs_steps=}"
-            )
-        if self.backbone == "unet":
-            factor = 2 ** (len(self.down_dims) - 1)
-            if self.horizon % factor:
-                raise ValueError(
-                    f"the UNet halves the horizon {len(self.down_dims) - 1} times: `horizon` must be a "
-                    f"multiple of {factor}, got {self.horizon} with down_dims={self.down_dims}"
-                )
-        if not self.vision_backbone.startswith("resnet"):
-            raise ValueError(f"`vision_backbone` must be a torchvision ResNet, got {self.vision_backbone!r}")
-        if not 0 < self.crop_ratio <= 1.0:
-            raise ValueError(f"`crop_ratio` must be in (0, 1], got {self.crop_ratio}")
+        self.validate_values()
         if self.resize_shape is not None:
             self.crop_shape = (
                 (int(self.resize_shape[0] * self.crop_ratio), int(self.resize_shape[1] * self.crop_ratio))
                 if self.crop_ratio < 1.0
                 else None
             )
+
+    def validate_values(self) -> None:
+        """Refuse values the policy cannot work with (:class:`PolicyConfigError`, a ``ValueError``,
+        whose message ``lerobot-train`` prints; see :mod:`lerobot_actionflow.policies.config_errors`).
+        """
+        require_choice(self, "backbone", BACKBONES)
+        require_choice(self, "time_spacing", TIME_SPACINGS)
+        require_choice(self, "train_time_distribution", TRAIN_TIME_DISTRIBUTIONS)
+        require_ints(self, ("num_inference_steps", "n_obs_steps", "horizon", "n_action_steps"))
+        require(
+            self.n_action_steps <= self.horizon - self.n_obs_steps + 1,
+            "`n_action_steps` must be <= horizon - n_obs_steps + 1 (actions start at the oldest "
+            f"observation); got {self.n_action_steps=}, {self.horizon=}, {self.n_obs_steps=}",
+        )
+        require_ints(self, ("drop_n_last_frames",), minimum=0)
+        require_positive(self, ("time_spacing_rate", "time_embed_scale"))
+        require(
+            len(self.train_time_beta) == 2 and all(b > 0 for b in self.train_time_beta),
+            f"`train_time_beta` must be two numbers > 0, got {self.train_time_beta!r}",
+        )
+        if self.backbone == "transformer":
+            require_ints(self, ("n_layer", "n_head", "n_emb"))
+            require(
+                self.n_emb % self.n_head == 0,
+                f"`n_emb` ({self.n_emb}) must be divisible by `n_head` ({self.n_head})",
+            )
+            require(
+                self.n_emb % 2 == 0 and self.n_emb >= 4,
+                f"`n_emb` must be even and >= 4 (sinusoidal time embedding), got {self.n_emb}",
+            )
+            require_probability(self, ("p_drop_emb", "p_drop_attn"))
+        else:
+            require_ints(self, ("kernel_size", "n_groups"))
+            require(self.kernel_size % 2 == 1, f"`kernel_size` must be odd, got {self.kernel_size}")
+            require(
+                len(self.down_dims) >= 1
+                and all(isinstance(d, int) and d >= 1 and d % self.n_groups == 0 for d in self.down_dims),
+                f"`down_dims` must be channel counts >= 1, each divisible by n_groups={self.n_groups} "
+                f"(group norm), got {self.down_dims!r}",
+            )
+            require(
+                isinstance(self.diffusion_step_embed_dim, int)
+                and self.diffusion_step_embed_dim % 2 == 0
+                and self.diffusion_step_embed_dim >= 4,
+                "`diffusion_step_embed_dim` must be even and >= 4 (sinusoidal time embedding), "
+                f"got {self.diffusion_step_embed_dim!r}",
+            )
+            factor = 2 ** (len(self.down_dims) - 1)
+            require(
+                self.horizon % factor == 0,
+                f"the UNet halves the horizon {len(self.down_dims) - 1} times: `horizon` must be a "
+                f"multiple of {factor}, got {self.horizon} with down_dims={self.down_dims}",
+            )
+        require(
+            self.vision_backbone.startswith("resnet"),
+            f"`vision_backbone` must be a torchvision ResNet, got {self.vision_backbone!r}",
+        )
+        require(0 < self.crop_ratio <= 1.0, f"`crop_ratio` must be in (0, 1], got {self.crop_ratio}")
+        require_ints(self, ("spatial_softmax_num_keypoints",))
 
     def get_optimizer_preset(self) -> AdamConfig:
         return AdamConfig(

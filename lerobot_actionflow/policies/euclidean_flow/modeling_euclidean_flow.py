@@ -29,6 +29,8 @@ from lerobot_actionflow.flow.euclidean import euler_sample, linear_path
 from lerobot_actionflow.flow.schedules import make_time_grid, sample_train_times
 from lerobot_actionflow.policies.euclidean_flow.backbones import make_backbone
 from lerobot_actionflow.policies.euclidean_flow.configuration_euclidean_flow import EuclideanFlowConfig
+from lerobot_actionflow.policies.inputs import check_num_inference_steps, check_observation
+from lerobot_actionflow.policies.loading import StrictLoading
 
 
 class ObservationEncoder(nn.Module):
@@ -74,7 +76,7 @@ class ObservationEncoder(nn.Module):
         return torch.cat(feats, dim=-1)
 
 
-class EuclideanFlowPolicy(PreTrainedPolicy):
+class EuclideanFlowPolicy(StrictLoading, PreTrainedPolicy):
     """Rectified-flow action-chunking policy (see module docstring)."""
 
     config_class = EuclideanFlowConfig
@@ -110,37 +112,15 @@ class EuclideanFlowPolicy(PreTrainedPolicy):
         """Check every used observation feature and stack the cameras.
 
         ``with_time``: tensors are ``(B, S, *shape)`` (training and offline chunks), else
-        ``(B, *shape)`` (one environment step). Raises ``ValueError`` naming a missing feature, a
-        wrong shape (with the expected one) or non-finite values.
+        ``(B, *shape)`` (one environment step). Every check of the policy's inputs happens here
+        (through :func:`lerobot_actionflow.policies.inputs.check_observation`: floating inputs are
+        cast to the policy's dtype, anything else is refused with a ``ValueError`` naming the
+        feature, the expected shape and dtype, and what was given). Only the features the policy
+        reads are returned.
         """
-        out = dict(batch)
-        s = self.config.n_obs_steps
-        for key, ft in self.config.used_input_features.items():
-            shape = tuple(ft.shape)
-            expected = (
-                f"(B, {s}, {', '.join(map(str, shape))})"
-                if with_time
-                else f"(B, {', '.join(map(str, shape))})"
-            )
-            if key not in batch:
-                raise ValueError(f"missing input feature '{key}': expected a tensor of shape {expected}")
-            x = batch[key]
-            if not isinstance(x, Tensor):
-                raise ValueError(
-                    f"input feature '{key}' must be a torch.Tensor of shape {expected}, got {type(x)}"
-                )
-            if with_time and s == 1 and x.ndim == len(shape) + 1:
-                x = x.unsqueeze(1)  # a single observation step may come without its time axis
-            lead = 2 if with_time else 1
-            if (
-                x.ndim != len(shape) + lead
-                or tuple(x.shape[lead:]) != shape
-                or (with_time and x.shape[1] != s)
-            ):
-                raise ValueError(f"input feature '{key}' has shape {tuple(x.shape)}, expected {expected}")
-            if not torch.isfinite(x).all():
-                raise ValueError(f"input feature '{key}' contains non-finite values (nan or inf)")
-            out[key] = x
+        shapes = {key: tuple(ft.shape) for key, ft in self.config.used_input_features.items()}
+        dtype = next(self.velocity_net.parameters()).dtype
+        out = check_observation(batch, shapes, self.config.n_obs_steps, with_time, dtype)
         if self.config.image_features:
             dim = 2 if with_time else 1
             out[OBS_IMAGES] = torch.stack([out[k] for k in self.config.image_features], dim=dim)
@@ -207,8 +187,9 @@ class EuclideanFlowPolicy(PreTrainedPolicy):
             noise = torch.randn(shape, dtype=cond.dtype, device=cond.device)
         elif tuple(noise.shape) != shape:
             raise ValueError(f"noise has shape {tuple(noise.shape)}, expected {shape}")
+        k = self.config.num_inference_steps if num_inference_steps is None else num_inference_steps
         times = make_time_grid(
-            num_inference_steps or self.config.num_inference_steps,
+            check_num_inference_steps(k),
             time_spacing or self.config.time_spacing,
             rate=self.config.time_spacing_rate,
             dtype=cond.dtype,

@@ -29,7 +29,7 @@ def _random_transform(gen, dtype, translation=1.0):
 
 def _velocities(policy, batch, t):
     """Local velocities the network predicts at the (noisy) action poses of the batch."""
-    obs = policy._observation_tokens(batch)
+    obs = policy._observation_tokens(policy.check_observation(batch))
     return policy.network(obs, se3_flow.PoseChunk(*action_to_pose(batch["action"])), t)
 
 
