@@ -192,7 +192,7 @@ class ActionflowConfig(PreTrainedConfig):
             require(
                 mode is NormalizationMode.IDENTITY,
                 f"normalization_mapping['{kind}'] must be IDENTITY for actionflow, got {mode}: "
-                "observation.poses and action are poses, and normalising them breaks SE(3) equivariance",
+                f"{POSES_KEY} and {ACTION_KEY} are poses, and normalising them breaks SE(3) equivariance",
             )
 
     # -- LeRobot hooks -------------------------------------------------------------------------

@@ -32,6 +32,7 @@ from lerobot_actionflow.policies.config_errors import (
     require_positive,
     require_probability,
 )
+from lerobot_actionflow.schema import ENV_STATE_KEY, STATE_KEY, image_key
 
 BACKBONES = ("transformer", "unet")
 TIME_SPACINGS = ("uniform", "exponential")
@@ -207,8 +208,8 @@ class EuclideanFlowConfig(PreTrainedConfig):
             )
         if self.robot_state_feature is None and self.env_state_feature is None and not self.image_features:
             raise ValueError(
-                "euclidean_flow needs at least one observation input: 'observation.state' (state_dim,), "
-                "'observation.environment_state' (env_dim,) or 'observation.images.<camera>' (3, H, W); "
+                f"euclidean_flow needs at least one observation input: '{STATE_KEY}' (state_dim,), "
+                f"'{ENV_STATE_KEY}' (env_dim,) or '{image_key('<camera>')}' (3, H, W); "
                 f"got input features {sorted(self.input_features or {})}"
             )
         for key, ft in self.used_input_features.items():
