@@ -139,4 +139,6 @@ class ActionFlowEnvConfig(EnvConfig):
             "scene_transform": self.scene_transform_kwargs(),
             "terminate_on_success": self.terminate_on_success,
             "max_episode_steps": self.episode_length,
+            # LeRobot's async workers each build one env: nothing would reuse MuJoCo's asset cache.
+            "asset_cache": False,
         }

@@ -40,6 +40,7 @@ episode, in any env instance (what robosuite draws at construction is seeded too
 
 from __future__ import annotations
 
+import ctypes
 import math
 from typing import Any, ClassVar
 
@@ -83,6 +84,8 @@ _FRAME_ARRAYS = {
     "site": ("site_xpos", "site_xmat"),
     "geom": ("geom_xpos", "geom_xmat"),
 }
+#: The C library of this process (``malloc_trim`` where it is glibc).
+_LIBC = ctypes.CDLL(None)
 _OBJ_TYPES = {
     "body": mujoco.mjtObj.mjOBJ_BODY,
     "site": mujoco.mjtObj.mjOBJ_SITE,
@@ -102,6 +105,10 @@ class PoseTokenEnv(gym.Env):
         scene_transform: a :class:`SceneTransform` (or a dict of its fields) applied at every
             reset; ``None`` for the task's own placement distribution.
         terminate_on_success: end the episode at the first success step.
+        asset_cache: keep the meshes and textures MuJoCo's compiler decoded in its process-wide
+            asset cache (about 90 MB for Lift), so the next env built in this process compiles
+            faster (about 0.3 s instead of 1.5 s). ``False`` empties the cache after building:
+            for a process that builds one env, such as a ``lerobot-eval`` worker.
     """
 
     metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": CONTROL_FREQ}
@@ -118,6 +125,7 @@ class PoseTokenEnv(gym.Env):
         render_width: int = 256,
         scene_transform: SceneTransform | dict | None = None,
         terminate_on_success: bool = True,
+        asset_cache: bool = True,
     ):
         super().__init__()
         if render_mode not in (None, "rgb_array"):
@@ -142,6 +150,7 @@ class PoseTokenEnv(gym.Env):
         self._ws_high = np.asarray(self.spec_task.workspace_high, dtype=np.float64)
 
         self._env = make_robosuite_env(self.spec_task)
+        release_compiler_memory(clear_asset_cache=not asset_cache)
         self._model: mujoco.MjModel = self._env.sim.model._model
         self._data: mujoco.MjData = self._env.sim.data._data
         self._setup_references()
@@ -348,6 +357,20 @@ class PoseTokenEnv(gym.Env):
         )
         r_new, p_new = compose(*target, *inverse(*off))
         self.set_body_pose(int(bid), p_new, matrix_to_quaternion(r_new))
+
+
+def release_compiler_memory(clear_asset_cache: bool = False) -> None:
+    """Give back to the OS the heap memory that compiling a model freed, optionally after
+    emptying MuJoCo's asset cache.
+
+    MuJoCo's compiler works in threads, and glibc gives each thread its own malloc arena; the
+    memory they free stays mapped (about 100 MB after compiling Lift) until ``malloc_trim``
+    returns the free pages. Not glibc (no ``malloc_trim``): only the cache is emptied."""
+    if clear_asset_cache:
+        mujoco.mj_clearCache(mujoco.mj_getCache())
+    trim = getattr(_LIBC, "malloc_trim", None)
+    if trim is not None:
+        trim(0)
 
 
 def make_robosuite_env(spec: TaskSpec, **overrides):

@@ -109,3 +109,22 @@ def test_make_env_async_workers_build_and_step():
         assert list(vec.call("task")) == ["StackThree_D1", "StackThree_D1"]
     finally:
         vec.close()
+
+
+def test_lerobot_envs_empty_mujocos_asset_cache_and_plain_envs_keep_it():
+    import gymnasium as gym
+    import mujoco
+
+    cache = mujoco.mj_getCache()
+    cfg = ActionFlowEnvConfig(task="Lift")
+    assert cfg.gym_kwargs["asset_cache"] is False
+    env = gym.make(cfg.gym_id, asset_cache=cfg.gym_kwargs["asset_cache"])
+    try:
+        assert mujoco.mj_getCacheSize(cache) == 0
+    finally:
+        env.close()
+    env = gym.make(cfg.gym_id)
+    try:
+        assert mujoco.mj_getCacheSize(cache) > 0
+    finally:
+        env.close()
