@@ -1,8 +1,8 @@
 """Memory of ``lerobot-eval --env.type=actionflow``: peak PSS of its process tree, per process
 and, for the env workers, per mapping.
 
-Runs ``lerobot-eval`` on a tiny untrained ActionFlow checkpoint (made here, the recipe of
-``tests/envs/test_lerobot_eval.py``) in its own session and samples every process of that
+Runs ``lerobot-eval`` on a tiny untrained ActionFlow checkpoint
+(``lerobot_actionflow.evaluation.untrained``) in its own session and samples every process of that
 session every ``--interval`` seconds from ``/proc/<pid>/smaps_rollup``. PSS (proportional set
 size) charges each page to the processes mapping it in equal parts, so the sum over processes
 counts a page shared copy-on-write between the forkserver and its workers once. At every new
@@ -32,36 +32,6 @@ from pathlib import Path
 
 _ROLLUP_KEYS = ("Rss", "Pss", "Shared_Clean", "Shared_Dirty", "Private_Clean", "Private_Dirty", "Swap")
 _MAP_KEYS = ("Pss", "Shared_Clean", "Shared_Dirty", "Private_Clean", "Private_Dirty")
-
-
-def make_checkpoint(task: str, path: Path) -> Path:
-    """A tiny untrained ActionFlow for ``task`` saved with its processors (as the eval test does)."""
-    import torch
-    from lerobot.configs.types import FeatureType, PolicyFeature
-
-    from lerobot_actionflow.envs.tasks import get_task
-    from lerobot_actionflow.policies.actionflow.configuration_actionflow import ActionflowConfig
-    from lerobot_actionflow.policies.actionflow.modeling_actionflow import ActionflowPolicy
-    from lerobot_actionflow.policies.actionflow.processor_actionflow import (
-        make_actionflow_pre_post_processors,
-    )
-
-    n = get_task(task).num_tokens
-    cfg = ActionflowConfig(
-        input_features={
-            "observation.poses": PolicyFeature(FeatureType.STATE, (n, 7)),
-            "observation.state": PolicyFeature(FeatureType.STATE, (11,)),
-        },
-        output_features={"action": PolicyFeature(FeatureType.ACTION, (10,))},
-        dim=16, num_layers=1, num_heads=2, head_dim=4, num_query_points=2, num_value_points=2,
-        horizon=8, n_action_steps=4, device="cpu", push_to_hub=False,
-    )  # fmt: skip
-    torch.manual_seed(0)
-    ActionflowPolicy(cfg).save_pretrained(path)
-    pre, post = make_actionflow_pre_post_processors(cfg)
-    pre.save_pretrained(path)
-    post.save_pretrained(path)
-    return path
 
 
 def _kib_fields(text: str, keys: tuple[str, ...]) -> dict[str, int]:
@@ -142,8 +112,10 @@ def group_by_library(groups: dict[str, dict[str, int]]) -> dict[str, dict[str, i
 
 
 def run(args) -> dict:
+    from lerobot_actionflow.evaluation.untrained import save_untrained_actionflow
+
     work = Path(args.work_dir or tempfile.mkdtemp(prefix="evalmem-"))
-    ckpt = Path(args.checkpoint) if args.checkpoint else make_checkpoint(args.task, work / "policy")
+    ckpt = Path(args.checkpoint) if args.checkpoint else save_untrained_actionflow(args.task, work / "policy")
     out_dir = work / f"eval-{int(time.time())}"
     cmd = [
         str(Path(sys.executable).with_name("lerobot-eval")), f"--policy.path={ckpt}", "--policy.device=cpu",
