@@ -30,6 +30,14 @@ import torch
 logger = logging.getLogger(__name__)
 
 
+def gather(values: torch.Tensor, rows: torch.Tensor) -> torch.Tensor:
+    """``values[rows]`` for ``values`` ``(F, *shape)`` and integer ``rows`` of any shape ``S``:
+    ``(*S, *shape)``. One ``index_select`` on the flattened rows, which stays on the calling thread
+    for batch-sized gathers (advanced indexing with a 2-D index hands them to the intra-op thread
+    pool: milliseconds of waiting on a busy machine)."""
+    return values.index_select(0, rows.reshape(-1)).reshape(*rows.shape, *values.shape[1:])
+
+
 def uint8_to_float(frames: torch.Tensor, kind: str) -> torch.Tensor:
     """uint8 frames -> float32 in [0, 1], with the exact arithmetic of LeRobot's path for
     ``kind`` (``"video"``: the decoders' ``(x / 255.0).type(float32)``; ``"image"``:
@@ -129,14 +137,14 @@ class CameraFrames:
     def image_rows(self, key: str, rows: torch.Tensor) -> torch.Tensor:
         """Image feature ``key`` at dataset rows ``rows`` (any shape ``S``): float32 ``(*S, C, H, W)``."""
         if key in self.cached:
-            return uint8_to_float(self.cached[key][rows], "image")
+            return uint8_to_float(gather(self.cached[key], rows), "image")
         flat = rows.reshape(-1).tolist()
         frames = torch.stack(self.dataset.hf_dataset[key][flat])
         return frames.reshape(*rows.shape, *frames.shape[1:])
 
     def cached_video_rows(self, key: str, rows: torch.Tensor) -> torch.Tensor:
         """Cached video feature ``key`` at dataset rows ``rows`` (shape ``S``): ``(*S, C, H, W)``."""
-        frames = self.cached[key][rows]
+        frames = gather(self.cached[key], rows)
         return frames if self.return_uint8 else uint8_to_float(frames, "video")
 
     def decode_videos(self, episode: int, timestamps: dict[str, Sequence[float]]) -> dict[str, torch.Tensor]:

@@ -39,7 +39,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import torch
 
-from lerobot_actionflow.data.camera_frames import CameraFrames
+from lerobot_actionflow.data.camera_frames import CameraFrames, gather
 
 logger = logging.getLogger(__name__)
 
@@ -216,12 +216,9 @@ class InMemoryLeRobotDataset(torch.utils.data.Dataset):
     def __getitems__(self, indices: list[int]) -> list[dict[str, Any]]:
         """The items of rows ``indices``, as ``[dataset[i] for i in indices]``."""
         batch = self.get_batch(indices)
-        n = len(indices)
-        items: list[dict[str, Any]] = [{} for _ in range(n)]
-        for key, value in batch.items():
-            parts = value if isinstance(value, list) else value.unbind(0)
-            for item, part in zip(items, parts, strict=True):
-                item[key] = part
+        keys = list(batch)
+        parts = [value if isinstance(value, list) else value.unbind(0) for value in batch.values()]
+        items = [dict(zip(keys, values, strict=True)) for values in zip(*parts, strict=True)]
         if self._image_transforms is not None:
             for item in items:
                 for cam in self._camera_keys:
@@ -233,15 +230,15 @@ class InMemoryLeRobotDataset(torch.utils.data.Dataset):
         along a new first dimension, ``task`` a list of ``B`` strings. Image transforms are not
         applied here (they are per item: use ``__getitems__``)."""
         rows = self._rows(indices)  # (B,)
-        abs_idx, ep = self._index[rows], self._episode[rows]
-        lo, hi = self._ep_from[ep].unsqueeze(1), self._ep_to[ep].unsqueeze(1)  # (B, 1)
+        abs_idx, ep = gather(self._index, rows), gather(self._episode, rows)
+        lo, hi = gather(self._ep_from, ep).unsqueeze(1), gather(self._ep_to, ep).unsqueeze(1)  # (B, 1)
         query_rows: dict[str, torch.Tensor] = {}
         pads: dict[str, torch.Tensor] = {}
         for key, d in self._deltas.items():
             q = abs_idx.unsqueeze(1) + d  # (B, T) absolute frame indices
             pads[f"{key}_is_pad"] = (q < lo) | (q >= hi)
             q = torch.minimum(torch.maximum(q, lo), hi - 1)
-            query_rows[key] = q if self._rel_of_abs is None else self._rel_of_abs[q]
+            query_rows[key] = q if self._rel_of_abs is None else gather(self._rel_of_abs, q)
 
         batch: dict[str, Any] = {}
         if self._cameras is not None:
@@ -249,11 +246,11 @@ class InMemoryLeRobotDataset(torch.utils.data.Dataset):
         for key in self._row_keys:
             key_rows = query_rows.get(key, rows)
             if key in self._columns:
-                batch[key] = self._columns[key][key_rows]
+                batch[key] = gather(self._columns[key], key_rows)
             else:  # an image feature (PNG in the rows)
                 batch[key] = self._cameras.image_rows(key, key_rows)
         batch.update(pads)
-        batch["task"] = [self._tasks[t] for t in self._columns["task_index"][rows].tolist()]
+        batch["task"] = [self._tasks[t] for t in gather(self._columns["task_index"], rows).tolist()]
         return batch
 
     def _rows(self, indices) -> torch.Tensor:
