@@ -37,18 +37,21 @@ _TRUE, _FALSE = ("true", "1", "yes"), ("false", "0", "no")
 
 
 def pop_image_cache_flag(args: list[str]) -> tuple[bool, list[str]]:
-    """``--image_cache[=true|false]`` out of ``args``: (its value, the other arguments)."""
-    value, rest = False, []
-    for arg in args:
-        name, eq, text = arg.partition("=")
+    """``--image_cache[=| ][true|false]`` out of ``args``: (its value, the other arguments)."""
+    value, rest, i = False, [], 0
+    while i < len(args):
+        name, eq, text = args[i].partition("=")
+        i += 1
         if name != IMAGE_CACHE_FLAG:
-            rest.append(arg)
-        elif not eq or text.lower() in _TRUE:
-            value = True
-        elif text.lower() in _FALSE:
-            value = False
-        else:
+            rest.append(args[i - 1])
+            continue
+        if not eq and i < len(args) and args[i].lower() in (*_TRUE, *_FALSE):
+            text, i = args[i], i + 1
+        elif not eq:
+            text = "true"
+        if text.lower() not in (*_TRUE, *_FALSE):
             raise SystemExit(f"actionflow-train: {IMAGE_CACHE_FLAG} takes true or false, got {text!r}")
+        value = text.lower() in _TRUE
     return value, rest
 
 

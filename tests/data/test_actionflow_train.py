@@ -9,8 +9,9 @@ from pathlib import Path
 
 import pytest
 
-from lerobot_actionflow.train import pop_image_cache_flag
+from lerobot_actionflow.train import in_memory_training_data, pop_image_cache_flag
 from tests.data.conftest import BIN, REPO_ID, cli_env
+from tests.data.test_in_memory import mismatches
 
 TINY_ACTIONFLOW = [
     "--policy.type=actionflow",
@@ -86,7 +87,35 @@ def test_same_seed_same_weights_and_cross_resume(lift_dataset, tmp_path):
 def test_image_cache_flag_is_ours_and_removed():
     assert pop_image_cache_flag(["--steps=3", "--image_cache=true"]) == (True, ["--steps=3"])
     assert pop_image_cache_flag(["--image_cache"]) == (True, [])
+    assert pop_image_cache_flag(["--image_cache", "false", "--steps=3"]) == (False, ["--steps=3"])
+    assert pop_image_cache_flag(["--image_cache", "--steps=3"]) == (True, ["--steps=3"])
     other = "--image_cache_x=1"
     assert pop_image_cache_flag(["--image_cache=false", other]) == (False, [other])
     with pytest.raises(SystemExit, match="true or false, got 'maybe'"):
         pop_image_cache_flag(["--image_cache=maybe"])
+
+
+def test_train_script_gets_in_memory_datasets_only_inside_the_block(lift_three_episodes):
+    """The factory lerobot-train calls is wrapped within the block (train and held-out episodes
+    both in memory, items equal to LeRobot's), and LeRobot's own function is back afterwards:
+    importing the plugin or this module changes nothing."""
+    import draccus
+    from lerobot.configs.train import TrainPipelineConfig
+    from lerobot.datasets import factory
+    from lerobot.scripts import lerobot_train
+
+    import lerobot_policy_actionflow  # noqa: F401
+    from lerobot_actionflow.data.in_memory import InMemoryLeRobotDataset
+
+    assert lerobot_train.make_train_eval_datasets is factory.make_train_eval_datasets
+    args = [f"--dataset.repo_id={REPO_ID}", f"--dataset.root={lift_three_episodes}"]
+    args += ["--dataset.eval_split=0.3", "--policy.type=euclidean_flow", "--policy.device=cpu"]
+    cfg = draccus.parse(TrainPipelineConfig, args=args)
+    plain = factory.make_train_eval_datasets(cfg)
+    with in_memory_training_data():
+        fast = lerobot_train.make_train_eval_datasets(cfg)
+    assert lerobot_train.make_train_eval_datasets is factory.make_train_eval_datasets
+    assert [d.episodes for d in fast] == [d.episodes for d in plain] == [[0, 1], [2]]
+    for ours, theirs in zip(fast, plain, strict=True):
+        assert isinstance(ours, InMemoryLeRobotDataset)
+        assert not mismatches([theirs[i] for i in range(len(theirs))], ours[:])
