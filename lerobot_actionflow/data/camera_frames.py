@@ -68,7 +68,7 @@ def decode_video_cache(dataset, key: str, rows_of_episode: dict[int, np.ndarray]
         frames = decode_video_frames(
             dataset.root / meta.get_video_file_path(ep_idx, key),
             query,
-            reader._tolerance_s,
+            dataset.tolerance_s,
             reader._video_backend,
             return_uint8=True,
         )

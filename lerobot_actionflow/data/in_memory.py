@@ -26,6 +26,10 @@ indices when a dataset has it, then its ``collate_fn`` on the returned list of i
 collate (``lerobot-train``'s) stacks them back. Not supported: depth features, language columns
 and string columns (the constructor says which feature); streaming datasets are a different
 class and are not wrapped.
+
+The settings are read from the wrapped dataset and its reader (LeRobot 0.6.1, pinned: the delta
+indices, ``return_uint8``, the video backend and per-item decoder); the item-by-item comparison
+with ``LeRobotDataset`` in the tests is what guards them against a LeRobot change.
 """
 
 from __future__ import annotations
@@ -148,7 +152,7 @@ class InMemoryLeRobotDataset(torch.utils.data.Dataset):
                 raise ValueError(f"delta_timestamps names {key!r}, which is not a feature of the dataset")
         rows_of_episode = self._rows_of_episode()
         self._cameras = CameraFrames(dataset, rows_of_episode, image_cache) if cameras else None
-        self._image_transforms = dataset.reader._image_transforms
+        self._image_transforms = dataset.image_transforms
         self._camera_keys = list(meta.camera_keys)
         self.load_s = time.perf_counter() - start
         logger.info(
