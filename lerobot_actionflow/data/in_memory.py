@@ -219,6 +219,8 @@ class InMemoryLeRobotDataset(torch.utils.data.Dataset):
 
     def __getitems__(self, indices: list[int]) -> list[dict[str, Any]]:
         """The items of rows ``indices``, as ``[dataset[i] for i in indices]``."""
+        if len(indices) == 0:
+            return []
         batch = self.get_batch(indices)
         keys = list(batch)
         parts = [value if isinstance(value, list) else value.unbind(0) for value in batch.values()]
