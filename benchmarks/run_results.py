@@ -3,7 +3,8 @@
 Stages (each skipped when its output exists, so an interrupted run continues):
 
 1. ``actionflow-collect``: ``--episodes`` expert demonstrations of ``--task`` (seed ``--seed``);
-2. ``lerobot-train`` of ``actionflow``, ``euclidean_flow`` (the diffusion UNet backbone, so that it
+2. ``actionflow-train`` (``lerobot-train``'s loop, the dataset served from RAM, no loader
+   workers) of ``actionflow``, ``euclidean_flow`` (the diffusion UNet backbone, so that it
    differs from Diffusion Policy only by the flow) and LeRobot's ``diffusion`` on that dataset,
    the same steps, batch, history, horizon and executed actions for all three;
 3. ``lerobot_actionflow.evaluation.sweep``: success against inference steps IS on the training
@@ -28,6 +29,8 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+
+from lerobot_actionflow.demo import train_command
 
 POLICIES = ("actionflow", "euclidean_flow", "diffusion")
 COMMON = ["--policy.n_obs_steps=2", "--policy.horizon=16", "--policy.n_action_steps=8"]
@@ -142,10 +145,10 @@ def main(argv: list[str] | None = None) -> int:
                 shutil.rmtree(run)  # a run interrupted before its checkpoint
             start = time.perf_counter()
             _run(
-                [_bin("lerobot-train"), f"--policy.type={policy}", f"--policy.device={args.device}",
+                [*train_command(), f"--policy.type={policy}", f"--policy.device={args.device}",
                  "--policy.push_to_hub=false", f"--dataset.repo_id={repo_id}", f"--dataset.root={data}",
                  f"--output_dir={run}", f"--steps={args.steps}", f"--save_freq={args.steps}",
-                 f"--batch_size={args.batch_size}", "--num_workers=1", "--log_freq=100",
+                 f"--batch_size={args.batch_size}", "--num_workers=0", "--log_freq=100",
                  "--wandb.enable=false", f"--seed={args.seed}", f"--policy.optimizer_lr={args.lr}",
                  "--policy.scheduler_warmup_steps=100", *COMMON, *sizes[policy]],
                 env, out / "logs" / f"train_{policy}.log",

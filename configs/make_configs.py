@@ -1,8 +1,13 @@
-"""Write the ready `lerobot-train` configs: configs/train/<policy>/<task>.json.
+"""Write the ready training configs: configs/train/<policy>/<task>.json.
 
     python configs/make_configs.py          # regenerate after editing the tables below
-    lerobot-train --config_path=configs/train/actionflow/StackThree_D0.json \\
+    actionflow-train --config_path=configs/train/actionflow/StackThree_D0.json \\
         --dataset.root=data/StackThree_D0 --policy.device=cuda
+
+They are `lerobot-train` configs, meant for `actionflow-train` (the same arguments and training
+loop, the dataset served from RAM): `num_workers` is 0 because a batch of pose tokens is gathered
+in about a millisecond in the training process. With plain `lerobot-train`, which reads the
+dataset item by item, add `--num_workers=4` or more.
 
 Each config names its dataset (`local/<task>`, root `data/<task>`: what `actionflow-collect`
 writes by default there), the env for periodic evaluation (`--env.type=actionflow`), the
@@ -54,7 +59,7 @@ POLICIES = {
 RUN = {
     "steps": 100_000,
     "batch_size": 64,
-    "num_workers": 4,
+    "num_workers": 0,
     "log_freq": 200,
     "save_freq": 20_000,
     "env_eval_freq": 20_000,

@@ -4,12 +4,15 @@
     actionflow-demo --task StackThree_D0 --episodes 100 --steps 20000 --device cuda
 
 1. ``actionflow-collect`` records expert demonstrations into a LeRobotDataset (resumable);
-2. ``lerobot-train --policy.type=actionflow`` trains on it (a checkpoint at the end);
+2. ``actionflow-train --policy.type=actionflow`` trains on it (``lerobot-train``'s arguments and
+   training loop, the dataset served from RAM: :mod:`lerobot_actionflow.train`), a checkpoint at
+   the end;
 3. ``lerobot-eval --env.type=actionflow`` rolls the policy out, records videos;
 4. the success rate and where the videos are are printed.
 
-Each stage streams its own progress. A stage whose output already exists is reused, so an
-interrupted demo continues where it stopped (``--fresh`` starts over).
+Each stage streams its own progress and its wall time is printed at the end. A stage whose
+output already exists is reused, so an interrupted demo continues where it stopped (``--fresh``
+starts over).
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ import os
 import shutil
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 #: Small ActionFlow that trains in minutes on two CPU cores.
@@ -42,11 +46,21 @@ def _bin(name: str) -> str:
     return str(path) if path.exists() else name
 
 
-def _run(cmd: list[str], env: dict[str, str]) -> None:
+def train_command() -> list[str]:
+    """``actionflow-train``, or ``python -m lerobot_actionflow.train`` where the console script is
+    not installed next to the interpreter (an editable checkout not reinstalled since it was added)."""
+    path = Path(sys.executable).with_name("actionflow-train")
+    return [str(path)] if path.exists() else [sys.executable, "-m", "lerobot_actionflow.train"]
+
+
+def _run(cmd: list[str], env: dict[str, str]) -> float:
+    """Run ``cmd``; its wall time in seconds (exit on failure)."""
     print("\n$ " + " ".join(cmd), flush=True)
+    start = time.perf_counter()
     code = subprocess.call(cmd, env=env)
     if code != 0:
         raise SystemExit(f"actionflow-demo: '{Path(cmd[0]).name}' failed with exit code {code}")
+    return time.perf_counter() - start
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -73,12 +87,13 @@ def main(argv: list[str] | None = None) -> int:
     repo_id = f"local/{args.task.lower()}_demo"
     env = {**os.environ, "HF_HUB_OFFLINE": "1", "WANDB_MODE": "disabled"}
     env.setdefault("MUJOCO_GL", "egl")
-    # Small models on a few cores: one intra-op thread per process, so that the policy, the data
-    # loader worker and the env workers never spin-wait against each other.
+    # Small models on a few cores: one intra-op thread per process, so that the policy and the
+    # env workers never spin-wait against each other.
     env.setdefault("OMP_NUM_THREADS", "1")
+    seconds: dict[str, float] = {}
 
     print(f"[1/3] collecting {args.episodes} expert demonstrations of {args.task} into {data}", flush=True)
-    _run(
+    seconds["collect"] = _run(
         [_bin("actionflow-collect"), "--task", args.task, "--episodes", str(args.episodes),
          "--root", str(data), "--repo-id", repo_id, "--seed", str(args.seed)],
         env,
@@ -91,11 +106,12 @@ def main(argv: list[str] | None = None) -> int:
         print(f"[2/3] training ActionFlow for {args.steps} steps on {args.device}", flush=True)
         if run.exists():  # a run interrupted before its first checkpoint
             shutil.rmtree(run)
-        _run(
-            [_bin("lerobot-train"), "--policy.type=actionflow", f"--policy.device={args.device}",
+        # The dataset is served from RAM in the training process: no loader workers.
+        seconds["train"] = _run(
+            [*train_command(), "--policy.type=actionflow", f"--policy.device={args.device}",
              "--policy.push_to_hub=false", f"--dataset.repo_id={repo_id}", f"--dataset.root={data}",
              f"--output_dir={run}", f"--steps={args.steps}", f"--save_freq={args.steps}",
-             f"--batch_size={args.batch_size}", "--num_workers=1", "--log_freq=100", "--wandb.enable=false",
+             f"--batch_size={args.batch_size}", "--num_workers=0", "--log_freq=100", "--wandb.enable=false",
              f"--seed={args.seed}", *([] if args.full_size else CPU_POLICY)],
             env,
         )  # fmt: skip
@@ -103,7 +119,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"[3/3] evaluating on {args.eval_episodes} episodes with lerobot-eval", flush=True)
     if evaluation.exists():
         shutil.rmtree(evaluation)
-    _run(
+    seconds["evaluate"] = _run(
         [_bin("lerobot-eval"), f"--policy.path={checkpoint}", f"--policy.device={args.device}",
          "--env.type=actionflow", f"--env.task={args.task}", f"--eval.n_episodes={args.eval_episodes}",
          f"--eval.batch_size={args.eval_batch_size}", f"--output_dir={evaluation}",
@@ -120,6 +136,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"checkpoint: {checkpoint}")
     print(f"videos: {videos[0].parent if videos else 'none written'} ({len(videos)} files)")
     print(f"eval details: {evaluation / 'eval_info.json'}")
+    print("wall time: " + ", ".join(f"{stage} {s:.0f} s" for stage, s in seconds.items()))
     return 0
 
 

@@ -10,7 +10,7 @@ import torch
 from lerobot_actionflow import geometry as g
 from lerobot_actionflow.data.features import schema_features
 from lerobot_actionflow.geometry.se3 import compose, rp_to_pose7, rp_to_pose9
-from lerobot_actionflow.schema import ACTION_KEY, ENV_STATE_KEY, POSES_KEY, STATE_KEY
+from lerobot_actionflow.schema import ACTION_KEY, ENV_STATE_KEY, POSES_KEY, STATE_KEY, image_key
 from lerobot_actionflow.schema.tensors import pose_to_action
 
 
@@ -45,6 +45,39 @@ def make_reach_dataset(
             }
             ds.add_frame({**{k2: v.numpy().astype(np.float32) for k2, v in frame.items()}, "task": "reach"})
             r_cur, p_cur = r_next, p_next
+        ds.save_episode()
+    ds.finalize()
+    return root
+
+
+def make_camera_dataset(
+    root: Path,
+    image_dtype: str,
+    repo_id: str = "local/cameras",
+    lengths: tuple[int, ...] = (9, 14, 11),
+    size: int = 32,
+    seed: int = 0,
+) -> Path:
+    """Episodes of random poses and one random 'wrist' camera (``image_dtype`` ``"video"`` or
+    ``"image"``), two tasks alternating, for comparing readers of camera features."""
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    rng = np.random.default_rng(seed)
+    features = schema_features(
+        num_tokens=2, cameras=("wrist",), image_size=(size, size), image_dtype=image_dtype
+    )
+    ds = LeRobotDataset.create(
+        repo_id=repo_id, fps=20, features=features, root=root, use_videos=image_dtype == "video"
+    )
+    for e, length in enumerate(lengths):
+        for _ in range(length):
+            frame = {
+                key: rng.standard_normal(ft["shape"]).astype(np.float32)
+                for key, ft in features.items()
+                if ft["dtype"] == "float32"
+            }
+            frame[image_key("wrist")] = rng.integers(0, 256, (size, size, 3), dtype=np.uint8)
+            ds.add_frame({**frame, "task": f"task {e % 2}"})
         ds.save_episode()
     ds.finalize()
     return root

@@ -50,6 +50,16 @@ def lift_dataset(tmp_path_factory) -> Path:
     return root
 
 
+@pytest.fixture(scope="session")
+def lift_three_episodes(tmp_path_factory) -> Path:
+    """A 3-episode Lift dataset written by ``actionflow-collect`` (read-only for the tests): one
+    episode with both boundaries inside the dataset."""
+    root = tmp_path_factory.mktemp("collect3") / "lift"
+    proc = run_collect(root, 3)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return root
+
+
 @pytest.fixture
 def lift_copy(lift_dataset, tmp_path) -> Path:
     dst = tmp_path / "lift"
