@@ -11,9 +11,13 @@ EEF targets ``[x, y, z, rot6d, gripper]``.
 
 from __future__ import annotations
 
+import logging
 from collections import deque
+from pathlib import Path
 
 import torch
+from huggingface_hub import snapshot_download
+from huggingface_hub.errors import HfHubHTTPError
 from lerobot.policies.pretrained import PreTrainedPolicy
 from lerobot.policies.utils import populate_queues
 from torch import Tensor
@@ -24,10 +28,13 @@ from lerobot_actionflow.geometry import check_finite, check_quaternion, quaterni
 from lerobot_actionflow.nn import ActionFlowNetwork, IPASize, ObservationTokens, PoseAdaptation
 from lerobot_actionflow.nn.image_encoder import ResNet18Encoder
 from lerobot_actionflow.policies.actionflow.configuration_actionflow import ActionflowConfig
+from lerobot_actionflow.policies.actionflow.exported import EXPORT_DIR, ExportedSamplers
 from lerobot_actionflow.policies.inputs import check_num_inference_steps, check_observation
 from lerobot_actionflow.policies.loading import StrictLoading
 from lerobot_actionflow.schema import ACTION_DIM, ACTION_KEY, POSES_KEY, STATE_KEY
 from lerobot_actionflow.schema.tensors import action_to_pose, pose_to_action
+
+logger = logging.getLogger(__name__)
 
 
 class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
@@ -73,6 +80,8 @@ class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
         for key in self.image_keys:  # any H, W: the image encoder resizes to config.image_size
             self._observation_shapes[key] = (config.image_features[key].shape[0], "H", "W")
         self._compiled_sampler = None
+        #: Exported samplers attached by :meth:`from_pretrained` (or :meth:`attach_exported_samplers`).
+        self.exported_samplers: ExportedSamplers | None = None
         self.reset()
 
     # -- LeRobot API ------------------------------------------------------------------------------
@@ -157,32 +166,39 @@ class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
     def _predict(
         self, obs: dict[str, Tensor], noise: se3_flow.LocalNoise | None, num_inference_steps: int | None
     ) -> Tensor:
-        """:meth:`predict_action_chunk` on an observation history already checked."""
+        """:meth:`predict_action_chunk` on an observation history already checked.
+
+        The sampler used, first that applies: an exported artefact for this K and device
+        (:mod:`~lerobot_actionflow.policies.actionflow.exported`), the ``torch.compile`` graph
+        (``compile_sampler``), eager.
+        """
         cfg = self.config
         k = check_num_inference_steps(
             cfg.num_inference_steps if num_inference_steps is None else num_inference_steps
         )
-        obs = self._observation_tokens(obs)
-        b = obs.p.shape[0]
+        poses = obs[POSES_KEY]
+        b, device, dtype = poses.shape[0], poses.device, poses.dtype
         if noise is None:
             noise = se3_flow.draw_local_noise(
-                b, cfg.horizon, cfg.noise_sigma, cfg.noise_rotation, cfg.noise_kappa, dtype=obs.p.dtype,
-                device=obs.p.device,
+                b, cfg.horizon, cfg.noise_sigma, cfg.noise_rotation, cfg.noise_kappa, dtype=dtype,
+                device=device,
             )  # fmt: skip
-        times = schedules.make_time_grid(
-            k, cfg.time_spacing, cfg.time_spacing_rate, obs.p.dtype, obs.p.device
-        )
-        if self._use_compiled_sampler(obs.p.device):
+        state = obs[STATE_KEY] if cfg.num_scalars else None
+        image_features = self._image_features(obs)
+        exported = self.exported_samplers.get(device, k, b) if self.exported_samplers is not None else None
+        if exported is not None:
+            return exported(poses, state, image_features, noise)
+        times = schedules.make_time_grid(k, cfg.time_spacing, cfg.time_spacing_rate, dtype, device)
+        args = (poses, state, image_features, noise.r, noise.p, noise.g, times)
+        if self._use_compiled_sampler(device):
             if self._compiled_sampler is None:
-                self._compiled_sampler = self._compile_sampler(obs.p.device)
+                self._compiled_sampler = self._compile_sampler(device)
             # CUDA-graph replays reuse their output buffers: copy before anyone keeps a view.
-            return self._compiled_sampler(
-                obs.r, obs.p, obs.scalars, obs.image_features, noise.r, noise.p, noise.g, times
-            ).clone()
-        return self._sample(obs.r, obs.p, obs.scalars, obs.image_features, noise.r, noise.p, noise.g, times)
+            return self._compiled_sampler(*args).clone()
+        return self.sample_from_observations(*args)
 
     def _compile_sampler(self, device: torch.device):
-        """``torch.compile`` of :meth:`_sample`, one graph per K.
+        """``torch.compile`` of :meth:`sample_from_observations`, one graph per K.
 
         On CUDA with ``compile_mode`` ("reduce-overhead": CUDA graphs). On the CPU, where a
         batch-1 chunk is bound by operator overhead and by streaming the weights, with inductor's
@@ -193,8 +209,33 @@ class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
         :meth:`reset_compiled_sampler`.
         """
         if device.type == "cpu":
-            return torch.compile(self._sample, dynamic=False, options={"freezing": True, "cpp_wrapper": True})
-        return torch.compile(self._sample, mode=self.config.compile_mode, dynamic=False)
+            return torch.compile(
+                self.sample_from_observations, dynamic=False, options={"freezing": True, "cpp_wrapper": True}
+            )
+        return torch.compile(self.sample_from_observations, mode=self.config.compile_mode, dynamic=False)
+
+    @classmethod
+    def from_pretrained(cls, pretrained_name_or_path, **kwargs):
+        """LeRobot's ``from_pretrained`` (strict), then the checkpoint's exported samplers, if any
+        (:meth:`attach_exported_samplers`)."""
+        policy = super().from_pretrained(pretrained_name_or_path, **kwargs)
+        hub = {k: kwargs[k] for k in ("revision", "cache_dir", "token", "local_files_only") if k in kwargs}
+        policy.attach_exported_samplers(pretrained_name_or_path, **hub)
+        return policy
+
+    def attach_exported_samplers(self, pretrained_name_or_path, **hub_kwargs) -> None:
+        """Use the exported samplers stored with a checkpoint (a local ``pretrained_model``
+        directory or a Hub repository) that match this policy's weights and configuration;
+        refused ones are logged (:mod:`~lerobot_actionflow.policies.actionflow.exported`)."""
+        directory = Path(pretrained_name_or_path)
+        if not directory.is_dir():
+            directory = _download_exported(str(pretrained_name_or_path), hub_kwargs)
+        self.exported_samplers = ExportedSamplers.load(self, directory) if directory is not None else None
+
+    def _save_pretrained(self, save_directory: Path, state_dict=None) -> None:
+        super()._save_pretrained(save_directory, state_dict)
+        if self.exported_samplers is not None and state_dict is None:
+            self.exported_samplers.save(save_directory)
 
     def reset_compiled_sampler(self) -> None:
         """Forget the compiled sampler; the next chunk compiles it again with the current weights."""
@@ -227,8 +268,34 @@ class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
         return self._queues[ACTION_KEY].popleft()
 
     # -- internals ---------------------------------------------------------------------------------
+    def sample_from_observations(
+        self,
+        poses: Tensor,
+        state: Tensor | None,
+        image_features: Tensor | None,
+        noise_r: Tensor,
+        noise_p: Tensor,
+        noise_g: Tensor,
+        times: Tensor,
+    ) -> Tensor:
+        """The sampler from checked observations to actions, as one tensor-in/tensor-out function
+        (what ``torch.compile`` compiles and :mod:`~lerobot_actionflow.policies.actionflow.exported`
+        exports).
+
+        Args:
+            poses: ``(B, n_obs_steps, N, 7)`` with unit quaternions; state: ``(B, n_obs_steps, 11)``
+                or None when the policy reads no state scalars; image_features: encoder outputs
+                ``(B, n_obs_steps, N_cam, 512)`` or None.
+            noise_r, noise_p, noise_g: initial noise in the EEF frame ``(B, H, 3, 3)``,
+                ``(B, H, 3)``, ``(B, H)``; times: the ``K + 1`` flow times.
+        Returns:
+            actions ``(B, H, 10)``.
+        """
+        obs = self._tokens(poses, state, image_features)
+        return self._sample(obs.r, obs.p, obs.scalars, obs.image_features, noise_r, noise_p, noise_g, times)
+
     def _sample(self, obs_r, obs_p, scalars, image_features, noise_r, noise_p, noise_g, times) -> Tensor:
-        """The whole K-step sampler as one tensor-in/tensor-out function (what gets compiled)."""
+        """The K-step sampler from network inputs (:class:`ObservationTokens`' tensors) to actions."""
         obs = ObservationTokens(obs_r, obs_p, scalars, image_features)
         encoded = self.network.encode_observations(obs)
         noise = se3_flow.LocalNoise(noise_r, noise_p, noise_g)
@@ -268,27 +335,40 @@ class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
 
     def _observation_tokens(self, obs: dict[str, Tensor]) -> ObservationTokens:
         """Network inputs from a checked observation history (:meth:`check_observation`)."""
-        cfg = self.config
-        poses = obs[POSES_KEY]  # (B, S, N, 7), unit quaternions
-        r, p = quaternion_to_matrix(poses[..., 3:]), poses[..., :3]
-        b = poses.shape[0]
+        return self._tokens(obs[POSES_KEY], obs.get(STATE_KEY), self._image_features(obs))
 
+    def _image_features(self, obs: dict[str, Tensor]) -> Tensor | None:
+        """ResNet18 features ``(B, n_obs_steps, N_cam, F)`` of the checked images, or None."""
+        if not self.image_keys:
+            return None
+        b, s = obs[POSES_KEY].shape[:2]
+        feats = [self.image_encoder(obs[key].flatten(0, 1)).view(b, s, -1) for key in self.image_keys]
+        return torch.stack(feats, 2)
+
+    def _tokens(
+        self, poses: Tensor, state: Tensor | None, image_features: Tensor | None
+    ) -> ObservationTokens:
+        """Network inputs from checked poses ``(B, S, N, 7)`` (unit quaternions), the state
+        ``(B, S, 11)`` (read only when ``num_scalars``) and image features."""
+        cfg = self.config
+        r, p = quaternion_to_matrix(poses[..., 3:]), poses[..., :3]
         scalars = None
         if cfg.num_scalars:
-            eef_scalars = obs[STATE_KEY][..., list(cfg.state_scalar_indices)] * cfg.state_scalar_scale
-            scalars = torch.zeros(
-                b, cfg.n_obs_steps, self.num_entities, cfg.num_scalars, dtype=r.dtype, device=r.device
-            )
-            scalars[:, :, 0] = eef_scalars
-
-        image_features = None
-        if self.image_keys:
-            feats = [
-                self.image_encoder(obs[key].flatten(0, 1)).view(b, cfg.n_obs_steps, -1)
-                for key in self.image_keys
-            ]
-            image_features = torch.stack(feats, 2)
+            eef_scalars = state[..., list(cfg.state_scalar_indices)] * cfg.state_scalar_scale
+            # Only the EEF token carries scalars; the object slots get zeros.
+            others = eef_scalars.new_zeros(*eef_scalars.shape[:2], self.num_entities - 1, cfg.num_scalars)
+            scalars = torch.cat((eef_scalars[:, :, None], others), 2)
         return ObservationTokens(r, p, scalars, image_features)
+
+
+def _download_exported(repo_id: str, hub_kwargs: dict) -> Path | None:
+    """The local snapshot of a Hub repository's exported samplers, or None (logged) when the Hub
+    cannot provide them."""
+    try:
+        return Path(snapshot_download(repo_id, allow_patterns=[f"{EXPORT_DIR}/*"], **hub_kwargs))
+    except (HfHubHTTPError, OSError, ValueError) as e:
+        logger.info("actionflow: no exported samplers fetched from %s (%s); sampling eagerly", repo_id, e)
+        return None
 
 
 def _require(batch: dict[str, Tensor], key: str) -> Tensor:

@@ -1,0 +1,151 @@
+"""``actionflow-export``: compile a trained ActionFlow checkpoint's sampler ahead of time.
+
+    actionflow-export CHECKPOINT [--steps 2 4] [--device cpu|cuda] [--max-batch-size 256]
+
+``CHECKPOINT`` is a ``pretrained_model`` directory, or a directory holding one (a checkpoint step
+directory, or a training output whose ``checkpoints/last/pretrained_model`` is used). For each K
+the sampler is exported with ``torch.export`` and compiled by AOTInductor (a few minutes per K on
+a 2-core CPU), then written to ``pretrained_model/exported_sampler/<device>_k<K>/`` (see
+:mod:`lerobot_actionflow.policies.actionflow.exported`). ``from_pretrained``, and so
+``lerobot-eval`` and any deployment loop, then samples with it from the first chunk. Each
+artefact is checked before the command ends: reloaded from disk, it must give the eager
+sampler's actions on the same noise.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+import time
+from pathlib import Path
+
+from lerobot_actionflow.schema import STATE_DIM
+
+#: Largest difference allowed between exported and eager actions on the same noise.
+EXPORT_TOLERANCE = 1e-5
+
+
+def resolve_pretrained_dir(path: str | Path) -> Path:
+    """The ``pretrained_model`` directory that ``path`` names or holds.
+
+    Raises:
+        FileNotFoundError: naming the path and the places looked at.
+    """
+    path = Path(path)
+    candidates = [path, path / "pretrained_model", path / "checkpoints" / "last" / "pretrained_model"]
+    for candidate in candidates:
+        if (candidate / "config.json").is_file() and (candidate / "model.safetensors").is_file():
+            return candidate
+    looked = ", ".join(str(c) for c in candidates)
+    raise FileNotFoundError(
+        f"no checkpoint at {path}: none of {looked} holds a config.json and a model.safetensors"
+    )
+
+
+def load_actionflow(pretrained_dir: Path, device: str):
+    """The ActionFlow policy of a checkpoint on ``device``, without its exported samplers.
+
+    Raises:
+        ValueError: the checkpoint is of another policy type.
+    """
+    from lerobot.configs.policies import PreTrainedConfig
+
+    from lerobot_actionflow.registry import register_all
+
+    register_all()
+    config = PreTrainedConfig.from_pretrained(pretrained_dir)
+    if config.type != "actionflow":
+        raise ValueError(
+            f"{pretrained_dir} holds a '{config.type}' policy; actionflow-export exports 'actionflow'"
+        )
+    config.device = device
+    from lerobot_actionflow.policies.actionflow.modeling_actionflow import ActionflowPolicy
+
+    policy = ActionflowPolicy.from_pretrained(pretrained_dir, config=config)
+    policy.exported_samplers = None
+    return policy
+
+
+def check_against_eager(pretrained_dir: Path, device: str, steps: list[int]) -> dict[int, float]:
+    """Reload the checkpoint with its artefacts; for each K, the largest difference between the
+    exported and the eager actions on one random observation and noise.
+
+    Raises:
+        RuntimeError: an artefact was refused, or differs from eager by more than
+            :data:`EXPORT_TOLERANCE`.
+    """
+    import torch
+
+    from lerobot_actionflow.flow import se3 as se3_flow
+    from lerobot_actionflow.geometry import random_rotation
+    from lerobot_actionflow.geometry.se3 import rp_to_pose7
+    from lerobot_actionflow.schema import POSES_KEY, STATE_KEY
+
+    policy = load_actionflow(pretrained_dir, device)
+    policy.attach_exported_samplers(pretrained_dir)
+    cfg = policy.config
+    gen = torch.Generator().manual_seed(0)
+    b, s, n = 2, cfg.n_obs_steps, policy.num_entities
+    poses = rp_to_pose7(random_rotation(b, s, n, generator=gen), 0.3 * torch.randn(b, s, n, 3, generator=gen))
+    batch = {POSES_KEY: poses, STATE_KEY: 0.02 * torch.rand(b, s, STATE_DIM, generator=gen)}
+    for key, feature in cfg.image_features.items():
+        batch[key] = torch.rand(b, s, *feature.shape, generator=gen)
+    batch = {k: v.to(device) for k, v in batch.items() if k in cfg.input_features}
+    noise = se3_flow.draw_local_noise(
+        b, cfg.horizon, cfg.noise_sigma, cfg.noise_rotation, cfg.noise_kappa, generator=gen
+    )
+    noise = se3_flow.LocalNoise(noise.r.to(device), noise.p.to(device), noise.g.to(device))
+    errors = {}
+    for k in steps:
+        exported = (
+            policy.exported_samplers.get(torch.device(device), k, b) if policy.exported_samplers else None
+        )
+        if exported is None:
+            raise RuntimeError(f"the artefact for K={k} on {device} was refused after export (see the log)")
+        a_exported = policy.predict_action_chunk(batch, noise=noise, num_inference_steps=k)
+        samplers, policy.exported_samplers = policy.exported_samplers, None
+        a_eager = policy.predict_action_chunk(batch, noise=noise, num_inference_steps=k)
+        policy.exported_samplers = samplers
+        errors[k] = float((a_exported - a_eager).abs().max())
+        if not errors[k] <= EXPORT_TOLERANCE:
+            raise RuntimeError(
+                f"the exported sampler for K={k} differs from eager by {errors[k]:.2e} "
+                f"(more than {EXPORT_TOLERANCE:.0e})"
+            )
+    return errors
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("checkpoint", help="pretrained_model directory (or a directory holding one)")
+    ap.add_argument("--steps", type=int, nargs="+", default=None, help="K values (default: the config's)")
+    ap.add_argument("--device", choices=["cpu", "cuda"], default="cpu")
+    ap.add_argument("--max-batch-size", type=int, default=256, help="largest batch the artefact accepts")
+    args = ap.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(message)s")
+    from lerobot_actionflow.policies.actionflow.exported import export_sampler
+
+    try:
+        pretrained_dir = resolve_pretrained_dir(args.checkpoint)
+        policy = load_actionflow(pretrained_dir, args.device)
+    except (FileNotFoundError, ValueError) as e:
+        print(f"actionflow-export: {e}", file=sys.stderr)
+        return 2
+    steps = args.steps or [policy.config.num_inference_steps]
+    bad = [k for k in steps if k < 1]
+    if bad:
+        print(f"actionflow-export: --steps must be >= 1, got {bad}", file=sys.stderr)
+        return 2
+    for k in steps:
+        t0 = time.perf_counter()
+        out = export_sampler(policy, pretrained_dir, k, args.device, args.max_batch_size)
+        size = (out / "sampler.pt2").stat().st_size / 2**20
+        print(f"K={k} on {args.device}: {out} ({size:.1f} MiB, {time.perf_counter() - t0:.0f} s)")
+    for k, err in check_against_eager(pretrained_dir, args.device, steps).items():
+        print(f"K={k}: exported == eager on the same noise (max |difference| {err:.1e})")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

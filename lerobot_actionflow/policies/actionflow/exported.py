@@ -1,0 +1,478 @@
+"""Ahead-of-time exported ActionFlow samplers, stored with a checkpoint.
+
+An *artefact* is ActionFlow's whole K-step sampler
+(:meth:`ActionflowPolicy.sample_from_observations`: checked observations and initial noise in,
+the ``(B, H, 10)`` action chunk out) exported with ``torch.export`` and compiled by AOTInductor
+into a shared library, with the weights frozen in as constants. Loading one is a ``dlopen``:
+no Python tracing, no compile wait, no guards, one C++ call per chunk.
+
+Layout, inside a checkpoint's ``pretrained_model/`` directory::
+
+    exported_sampler/<device>_k<K>/sampler.pt2     the AOTInductor package
+    exported_sampler/<device>_k<K>/manifest.json   what it was built from
+
+An artefact is used only when its manifest matches the policy that loads it: the same format,
+policy type, torch version, device type and K, the SHA-256 of the weights (every tensor of the
+state dict, in name order, with its dtype and shape) and of the configuration (every field
+except those listed in :data:`SAMPLER_INDEPENDENT_FIELDS`), and the SHA-256 of ``sampler.pt2``
+itself. Anything else is refused with a log line naming the difference, and that K samples
+eagerly. After loading, the parameters' version counters are watched: an in-place change
+(an optimiser step, ``load_state_dict``) makes the next chunk re-hash the weights, and
+artefacts whose weights no longer match are dropped with a log line. Writes through ``.data``
+bypass the version counters; call :meth:`ExportedSamplers.verify` after such an edit.
+
+Batch sizes are dynamic (``1 .. max_batch_size``); a larger batch samples eagerly.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+import shutil
+import tempfile
+from collections.abc import Callable, Iterable
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import draccus
+import torch
+from torch import Tensor, nn
+
+logger = logging.getLogger(__name__)
+
+#: The artefacts' directory inside a ``pretrained_model/`` directory.
+EXPORT_DIR = "exported_sampler"
+PACKAGE_FILE = "sampler.pt2"
+MANIFEST_FILE = "manifest.json"
+#: Bumped whenever the artefact's calling convention changes.
+FORMAT_VERSION = 1
+#: Configuration fields that do not change what the sampler computes for a given K (they act
+#: before or after it, or only in training). Every other field is part of the fingerprint, so a
+#: field added later can only cause a refusal, never a stale artefact.
+SAMPLER_INDEPENDENT_FIELDS = frozenset(
+    {
+        "device",
+        "use_amp",
+        "use_peft",
+        "push_to_hub",
+        "repo_id",
+        "private",
+        "tags",
+        "license",
+        "pretrained_path",
+        "n_action_steps",
+        "num_inference_steps",
+        "rotation_tolerance",
+        "compile_sampler",
+        "compile_mode",
+        "dropout",
+        "train_time_distribution",
+        "train_time_beta",
+        "loss_weight_translation",
+        "loss_weight_rotation",
+        "loss_weight_gripper",
+        "optimizer_lr",
+        "optimizer_betas",
+        "optimizer_eps",
+        "optimizer_weight_decay",
+        "optimizer_grad_clip_norm",
+        "scheduler_warmup_steps",
+    }
+)
+
+
+def artefact_name(device: str, num_inference_steps: int) -> str:
+    """Directory name of the artefact for a device type and K, e.g. ``cpu_k4``."""
+    return f"{device}_k{num_inference_steps}"
+
+
+def weights_fingerprint(module: nn.Module) -> str:
+    """SHA-256 of every tensor of ``module.state_dict()``: name, dtype, shape and bytes."""
+    digest = hashlib.sha256()
+    for name, tensor in sorted(module.state_dict().items()):
+        t = tensor.detach().cpu().contiguous()
+        digest.update(f"{name}|{t.dtype}|{tuple(t.shape)}|".encode())
+        digest.update(t.reshape(-1).view(torch.uint8).numpy().tobytes())
+    return digest.hexdigest()
+
+
+def config_fingerprint(config) -> str:
+    """SHA-256 of the configuration's JSON encoding, without :data:`SAMPLER_INDEPENDENT_FIELDS`."""
+    encoded = draccus.encode(config)
+    kept = {k: v for k, v in encoded.items() if k not in SAMPLER_INDEPENDENT_FIELDS}
+    return hashlib.sha256(json.dumps(kept, sort_keys=True, default=str).encode()).hexdigest()
+
+
+def file_fingerprint(path: Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+@dataclass(frozen=True)
+class Manifest:
+    """What an artefact was built from (``manifest.json``).
+
+    Attributes:
+        inputs: the tensors the package takes, in order (``observation.poses``, then
+            ``observation.state`` and ``image_features`` when the policy reads them, then
+            ``noise_r``, ``noise_p``, ``noise_g``).
+        max_batch_size: the largest batch the package accepts.
+    """
+
+    format: int
+    policy: str
+    device: str
+    num_inference_steps: int
+    torch: str
+    dtype: str
+    weights_sha256: str
+    config_sha256: str
+    package_sha256: str
+    inputs: tuple[str, ...]
+    max_batch_size: int
+
+    @classmethod
+    def read(cls, path: Path) -> Manifest:
+        """Raises ``ValueError`` naming the file when it is not a manifest."""
+        try:
+            data = json.loads(path.read_text())
+            data["inputs"] = tuple(data["inputs"])
+            return cls(**data)
+        except (OSError, ValueError, TypeError, KeyError) as e:
+            raise ValueError(f"{path} is not a readable exported-sampler manifest: {e}") from e
+
+    def write(self, path: Path) -> None:
+        path.write_text(json.dumps(asdict(self), indent=2) + "\n")
+
+    def differences(self, expected: Manifest) -> list[str]:
+        """The fields that differ from ``expected`` (the package hash excepted), as readable text."""
+        names = {
+            "weights_sha256": "weights",
+            "config_sha256": "configuration",
+            "torch": "torch version",
+            "num_inference_steps": "K",
+        }
+        out = []
+        for field, mine in asdict(self).items():
+            if field in ("package_sha256", "max_batch_size"):
+                continue
+            theirs = getattr(expected, field)
+            if mine != theirs:
+                label = names.get(field, field)
+                if field.endswith("sha256"):
+                    out.append(f"other {label} than the policy's")
+                else:
+                    out.append(f"{label} {mine!r}, the policy has {theirs!r}")
+        return out
+
+
+class SamplerProgram(nn.Module):
+    """The module that gets exported: :meth:`ActionflowPolicy.sample_from_observations` with
+    K's flow times as a constant, taking only the tensors the policy reads."""
+
+    def __init__(self, policy, num_inference_steps: int):
+        super().__init__()
+        from lerobot_actionflow.flow import schedules
+
+        cfg = policy.config
+        self.policy = policy
+        self.has_state = bool(cfg.num_scalars)
+        self.has_images = bool(policy.image_keys)
+        self.register_buffer(
+            "times",
+            schedules.make_time_grid(
+                num_inference_steps, cfg.time_spacing, cfg.time_spacing_rate, torch.float32, "cpu"
+            ),
+            persistent=False,
+        )
+
+    def input_names(self) -> tuple[str, ...]:
+        from lerobot_actionflow.schema import POSES_KEY, STATE_KEY
+
+        names = [POSES_KEY]
+        if self.has_state:
+            names.append(STATE_KEY)
+        if self.has_images:
+            names.append("image_features")
+        return (*names, "noise_r", "noise_p", "noise_g")
+
+    def forward(self, *inputs: Tensor) -> Tensor:
+        it = iter(inputs)
+        poses = next(it)
+        state = next(it) if self.has_state else None
+        image_features = next(it) if self.has_images else None
+        noise_r, noise_p, noise_g = it
+        times = self.times.to(poses.dtype)
+        return self.policy.sample_from_observations(
+            poses, state, image_features, noise_r, noise_p, noise_g, times
+        )
+
+
+def _example_inputs(policy, batch_size: int, device: torch.device) -> tuple[Tensor, ...]:
+    """Valid inputs of the program's shapes (identity rotations; the values do not matter)."""
+    from lerobot_actionflow.schema import STATE_DIM
+
+    cfg = policy.config
+    s, n, h = cfg.n_obs_steps, policy.num_entities, cfg.horizon
+    poses = torch.zeros(batch_size, s, n, 7, device=device)
+    poses[..., 6] = 1.0
+    out = [poses]
+    if cfg.num_scalars:
+        out.append(torch.zeros(batch_size, s, STATE_DIM, device=device))
+    if policy.image_keys:
+        from lerobot_actionflow.nn.image_encoder import ResNet18Encoder
+
+        out.append(torch.zeros(batch_size, s, len(policy.image_keys), ResNet18Encoder.out_dim, device=device))
+    eye = torch.eye(3, device=device).expand(batch_size, h, 3, 3).contiguous()
+    out += [eye, torch.zeros(batch_size, h, 3, device=device), torch.zeros(batch_size, h, device=device)]
+    return tuple(out)
+
+
+def expected_manifest(
+    policy, device: str, num_inference_steps: int, package_sha256: str = "", weights_sha256: str | None = None
+) -> Manifest:
+    """The manifest an artefact of this policy for ``device`` and K must carry (``weights_sha256``:
+    the policy's :func:`weights_fingerprint`, when already computed)."""
+    program = SamplerProgram(policy, num_inference_steps)
+    return Manifest(
+        format=FORMAT_VERSION,
+        policy=policy.name,
+        device=device,
+        num_inference_steps=num_inference_steps,
+        torch=torch.__version__,
+        dtype=str(policy._dtype).removeprefix("torch."),
+        weights_sha256=weights_sha256 or weights_fingerprint(policy),
+        config_sha256=config_fingerprint(policy.config),
+        package_sha256=package_sha256,
+        inputs=program.input_names(),
+        max_batch_size=0,
+    )
+
+
+def export_sampler(
+    policy, directory: str | Path, num_inference_steps: int, device: str = "cpu", max_batch_size: int = 256
+) -> Path:
+    """Export and compile the sampler of ``policy`` for K steps on ``device``; write the artefact
+    under ``directory/exported_sampler/`` (replacing one of the same device and K) and return its
+    directory.
+
+    The artefact is built in a temporary directory next to its destination and moved into place
+    when complete, so an interrupted export leaves any earlier artefact as it was.
+
+    Raises:
+        ValueError: K < 1, ``max_batch_size`` < 1, or a device type other than cpu / cuda.
+        RuntimeError: CUDA requested but not available.
+    """
+    if num_inference_steps < 1:
+        raise ValueError(f"num_inference_steps (K) must be >= 1, got {num_inference_steps}")
+    if max_batch_size < 1:
+        raise ValueError(f"max_batch_size must be >= 1, got {max_batch_size}")
+    if device not in ("cpu", "cuda"):
+        raise ValueError(f"device must be 'cpu' or 'cuda', got {device!r}")
+    if device == "cuda" and not torch.cuda.is_available():
+        raise RuntimeError("--device cuda: torch sees no CUDA device on this machine")
+    policy = policy.to(device).eval()
+    program = SamplerProgram(policy, num_inference_steps).to(device).eval()
+    # Batch 2 in the example: torch.export specialises a dimension of size 1.
+    example = _example_inputs(policy, 2, torch.device(device))
+    batch = torch.export.Dim("batch", min=1, max=max_batch_size)
+    dynamic_shapes = (tuple({0: batch} for _ in example),)  # forward(*inputs): one varargs entry
+    with torch.no_grad():
+        exported = torch.export.export(program, example, dynamic_shapes=dynamic_shapes, strict=False)
+    final = Path(directory) / EXPORT_DIR / artefact_name(device, num_inference_steps)
+    final.parent.mkdir(parents=True, exist_ok=True)
+    staging = _staging_dir(final)
+    try:
+        package = staging / PACKAGE_FILE
+        # Frozen weights are constants inductor can fold and pre-pack for its matmuls.
+        torch._inductor.aoti_compile_and_package(
+            exported, package_path=str(package), inductor_configs={"freezing": True}
+        )
+        manifest = expected_manifest(policy, device, num_inference_steps, file_fingerprint(package))
+        Manifest(**{**asdict(manifest), "max_batch_size": max_batch_size}).write(staging / MANIFEST_FILE)
+        _replace_directory(staging, final)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    return final
+
+
+def _staging_dir(final: Path) -> Path:
+    """A fresh, readable directory next to ``final``, for building its replacement."""
+    staging = Path(tempfile.mkdtemp(prefix=f".{final.name}-", dir=final.parent))
+    staging.chmod(0o755)
+    return staging
+
+
+def _replace_directory(new: Path, final: Path) -> None:
+    """Move ``new`` to ``final``; a previous ``final`` is removed only once ``new`` is in place."""
+    old = None
+    if final.exists():
+        old = final.with_name(f".{final.name}-old-{os.getpid()}")
+        os.replace(final, old)
+    os.replace(new, final)
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True)
+
+
+class _Runner:
+    """One loaded package: calls it with the inputs its manifest names."""
+
+    def __init__(self, package: Path, manifest: Manifest):
+        self.manifest = manifest
+        self.package = package
+        # The C++ loader directly: importing torch._inductor's Python side takes seconds.
+        loader_cls = torch._C._aoti.AOTIModelPackageLoader
+        self._loader = loader_cls(str(package), "model", False, 1, -1)
+        self._run: Callable[[list[Tensor]], list[Tensor]] = self._loader.run
+
+    def __call__(self, inputs: list[Tensor]) -> Tensor:
+        return self._run(inputs)[0]
+
+
+class ExportedSamplers:
+    """The artefacts a policy may use, by (device type, K), with the staleness checks of the
+    module docstring."""
+
+    def __init__(self, policy, runners: dict[tuple[str, int], _Runner]):
+        self._policy = policy
+        self._runners = runners
+        self._versions = self._parameter_versions()
+        self._reported_misses: set[tuple[str, int]] = set()
+
+    @classmethod
+    def load(cls, policy, directory: str | Path) -> ExportedSamplers | None:
+        """The matching artefacts under ``directory/exported_sampler`` (None when there is no such
+        directory). Each refused artefact is logged with its reason."""
+        root = Path(directory) / EXPORT_DIR
+        if not root.is_dir():
+            return None
+        runners = {}
+        weights = weights_fingerprint(policy)
+        for artefact in sorted(p for p in root.iterdir() if p.is_dir() and not p.name.startswith(".")):
+            runner = _load_artefact(policy, artefact, weights)
+            if runner is not None:
+                m = runner.manifest
+                runners[(m.device, m.num_inference_steps)] = runner
+        return cls(policy, runners)
+
+    def keys(self) -> list[tuple[str, int]]:
+        return sorted(self._runners)
+
+    def get(self, device: torch.device, num_inference_steps: int, batch_size: int) -> Callable | None:
+        """A callable ``(poses, state, image_features, noise) -> actions`` for this device, K and
+        batch size, or None (logged once per device and K) when there is none or it no longer
+        matches."""
+        key = (device.type, num_inference_steps)
+        if self._versions != self._parameter_versions():
+            self.verify()
+        runner = self._runners.get(key)
+        if runner is None or batch_size > runner.manifest.max_batch_size:
+            if key not in self._reported_misses and self._runners:
+                self._reported_misses.add(key)
+                if runner is None:
+                    have = ", ".join(f"{d} K={k}" for d, k in self.keys())
+                    reason = f"no exported sampler for K={num_inference_steps} on {device.type} ({have})"
+                else:
+                    limit = runner.manifest.max_batch_size
+                    reason = f"batch {batch_size} is above the exported sampler's {limit}"
+                logger.warning("actionflow: %s; sampling eagerly", reason)
+            return None
+        return lambda poses, state, image_features, noise: self._call(
+            runner, poses, state, image_features, noise
+        )
+
+    @staticmethod
+    def _call(runner: _Runner, poses, state, image_features, noise) -> Tensor:
+        inputs = [poses]
+        if state is not None:
+            inputs.append(state)
+        if image_features is not None:
+            inputs.append(image_features)
+        inputs += [noise.r, noise.p, noise.g]
+        if len(inputs) != len(runner.manifest.inputs):
+            raise ValueError(
+                f"the exported sampler {runner.package} takes {list(runner.manifest.inputs)}, "
+                f"got {len(inputs)} tensors"
+            )
+        return runner([t.contiguous() for t in inputs])
+
+    def verify(self) -> None:
+        """Re-hash the weights; drop (with a log line) every artefact built from other weights."""
+        fingerprint = weights_fingerprint(self._policy)
+        for key, runner in list(self._runners.items()):
+            if runner.manifest.weights_sha256 != fingerprint:
+                logger.warning(
+                    "actionflow: the policy's weights changed since the exported sampler %s was "
+                    "loaded; not using it (K=%d on %s samples eagerly)",
+                    runner.package, key[1], key[0],
+                )  # fmt: skip
+                del self._runners[key]
+        self._versions = self._parameter_versions()
+
+    def save(self, directory: str | Path) -> None:
+        """Copy the artefacts still in use to ``directory/exported_sampler`` (``save_pretrained``)."""
+        if self._versions != self._parameter_versions():
+            self.verify()
+        for (device, k), runner in self._runners.items():
+            target = Path(directory) / EXPORT_DIR / artefact_name(device, k)
+            if target.resolve() == runner.package.parent.resolve():
+                continue
+            target.parent.mkdir(parents=True, exist_ok=True)
+            staging = _staging_dir(target)
+            try:
+                for name in (PACKAGE_FILE, MANIFEST_FILE):
+                    shutil.copy2(runner.package.parent / name, staging / name)
+                _replace_directory(staging, target)
+            finally:
+                shutil.rmtree(staging, ignore_errors=True)
+
+    def _parameter_versions(self) -> tuple[int, ...]:
+        return tuple(t._version for t in _tensors(self._policy))
+
+
+def _tensors(module: nn.Module) -> Iterable[Tensor]:
+    yield from module.parameters()
+    yield from module.buffers()
+
+
+def _load_artefact(policy, artefact: Path, weights_sha256: str) -> _Runner | None:
+    """The runner of one artefact directory, or None with a log line saying why it is refused."""
+
+    def refuse(why: str) -> None:
+        logger.warning("actionflow: not using the exported sampler %s: %s; sampling eagerly", artefact, why)
+
+    try:
+        manifest = Manifest.read(artefact / MANIFEST_FILE)
+    except ValueError as e:
+        refuse(str(e))
+        return None
+    if manifest.format != FORMAT_VERSION:
+        refuse(f"format {manifest.format}, this version reads format {FORMAT_VERSION}")
+        return None
+    if manifest.device == "cuda" and not torch.cuda.is_available():
+        refuse("it was exported for CUDA and torch sees no CUDA device")
+        return None
+    expected = expected_manifest(
+        policy, manifest.device, manifest.num_inference_steps, weights_sha256=weights_sha256
+    )
+    differences = manifest.differences(expected)
+    if differences:
+        refuse("; ".join(differences) + f" (re-export with `actionflow-export {artefact.parent.parent}`)")
+        return None
+    package = artefact / PACKAGE_FILE
+    if not package.is_file():
+        refuse(f"{package} is missing")
+        return None
+    if file_fingerprint(package) != manifest.package_sha256:
+        refuse(f"{package} is not the file its manifest describes")
+        return None
+    try:
+        return _Runner(package, manifest)
+    except (RuntimeError, AttributeError) as e:
+        refuse(f"the package does not load: {e}")
+        return None
