@@ -27,9 +27,9 @@ turned into the target, weights and frozen mask of :mod:`lerobot_actionflow.flow
 from __future__ import annotations
 
 import math
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from time import perf_counter
 from typing import Any
 
 import torch
@@ -112,11 +112,11 @@ def timed(fn: Callable[[], Tensor], device: torch.device, measure: bool = True) 
     """``fn()`` and its wall-clock time in seconds (CUDA work is waited for); 0 if not ``measure``."""
     if not measure:
         return fn(), 0.0
-    start = time.perf_counter()
+    start = perf_counter()
     out = fn()
     if device.type == "cuda":
         torch.cuda.synchronize(device)
-    return out, time.perf_counter() - start
+    return out, perf_counter() - start
 
 
 def validate_execution_fields(config: Any) -> None:
