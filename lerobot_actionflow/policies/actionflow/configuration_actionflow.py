@@ -17,6 +17,7 @@ from lerobot_actionflow.policies.config_errors import (
     require_positive,
     require_probability,
 )
+from lerobot_actionflow.policies.execution import validate_execution_fields
 from lerobot_actionflow.schema import (
     ACTION_DIM,
     ACTION_KEY,
@@ -77,6 +78,20 @@ class ActionflowConfig(PreTrainedConfig):
             pre-packed weights and inductor's C++ wrapper (about 2.5x faster than eager at batch
             1; benchmarks/RESULTS.md). None (default): on when the policy runs on a CUDA device,
             off on the CPU, where the first chunk of every K compiles for 2-3 minutes.
+
+    Execution in real time (App. G; :mod:`lerobot_actionflow.policies.execution`), applied by
+    ``select_action``; the defaults keep the plain behaviour (no skipping, no smoothing):
+        execution_delay_steps: a fixed inference delay in control steps; the actions of the
+            new chunk that were due during the delay are skipped (delay d skips ceil(d)).
+        execution_delay_s: a fixed delay in seconds (converted with ``control_period_s``).
+        measure_inference_delay: add the measured wall-clock time of each chunk's inference.
+        control_period_s: seconds per control step (the paper: 0.04 at 25 Hz); needed for
+            delays in seconds.
+        target_smoothing [App. G: exponential smoothing]: weight alpha in (0, 1] of the new
+            action in ``y_n = blend(y_{n-1}, a_n, alpha)``, rotations along the SE(3) geodesic;
+            1 = no smoothing.
+    The paper's "execute two actions, then re-plan" is ``n_action_steps=2``. For real-time
+    chunking (``lerobot-rollout --inference.type=rtc``) see ``predict_action_chunk``.
     """
 
     n_obs_steps: int = 2
@@ -137,6 +152,12 @@ class ActionflowConfig(PreTrainedConfig):
     optimizer_grad_clip_norm: float = 1.0
     scheduler_warmup_steps: int = 500
 
+    execution_delay_steps: int = 0
+    execution_delay_s: float = 0.0
+    measure_inference_delay: bool = False
+    control_period_s: float | None = None
+    target_smoothing: float = 1.0
+
     def __post_init__(self):
         super().__post_init__()
         self.validate_values()
@@ -187,6 +208,7 @@ class ActionflowConfig(PreTrainedConfig):
             self.image_size is None or (len(self.image_size) == 2 and min(self.image_size) >= 1),
             f"`image_size` must be (height, width) >= 1, got {self.image_size!r}",
         )
+        validate_execution_fields(self)
         for kind in ("STATE", "ACTION"):
             mode = self.normalization_mapping.get(kind, NormalizationMode.IDENTITY)
             require(

@@ -22,13 +22,21 @@ from lerobot.policies.pretrained import PreTrainedPolicy
 from lerobot.policies.utils import populate_queues
 from torch import Tensor
 
-from lerobot_actionflow.flow import schedules
+from lerobot_actionflow.flow import guidance, schedules
 from lerobot_actionflow.flow import se3 as se3_flow
 from lerobot_actionflow.geometry import check_finite, check_quaternion, quaternion_to_matrix
 from lerobot_actionflow.nn import ActionFlowNetwork, IPASize, ObservationTokens, PoseAdaptation
 from lerobot_actionflow.nn.image_encoder import ResNet18Encoder
 from lerobot_actionflow.policies.actionflow.configuration_actionflow import ActionflowConfig
 from lerobot_actionflow.policies.actionflow.exported import EXPORT_DIR, ExportedSamplers
+from lerobot_actionflow.policies.execution import (
+    ExecutionOptions,
+    RTCGuidance,
+    TargetSmoother,
+    rtc_config_of,
+    rtc_guidance,
+    timed,
+)
 from lerobot_actionflow.policies.inputs import check_num_inference_steps, check_observation
 from lerobot_actionflow.policies.loading import StrictLoading
 from lerobot_actionflow.schema import ACTION_DIM, ACTION_KEY, POSES_KEY, STATE_KEY
@@ -95,6 +103,7 @@ class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
             keys.append(STATE_KEY)
         self._queues = {k: deque(maxlen=self.config.n_obs_steps) for k in keys}
         self._queues[ACTION_KEY] = deque(maxlen=self.config.n_action_steps)
+        self._smoother = TargetSmoother(self.config.target_smoothing)
 
     def forward(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict[str, float]]:
         """Flow-matching loss on a batch with ``observation.*`` ``(B, n_obs_steps, ...)`` and
@@ -142,26 +151,117 @@ class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
         )
         return loss, {f"loss_{k}": v.item() for k, v in terms.items()}
 
+    def supports_rtc(self) -> bool:
+        """LeRobot's real-time chunking (``lerobot-rollout --inference.type=rtc``) is supported."""
+        return True
+
     @torch.no_grad()
     def predict_action_chunk(
         self,
         batch: dict[str, Tensor],
         noise: se3_flow.LocalNoise | None = None,
         num_inference_steps: int | None = None,
+        inference_delay: int | None = None,
+        prev_chunk_left_over: Tensor | None = None,
+        execution_horizon: int | None = None,
+        **kwargs,
     ) -> Tensor:
         """The sampled actions from the current step on: ``(B, horizon, 10)`` (the chunk starts at
         the current step; see :class:`ActionflowConfig`).
 
         Args:
             batch: the observation history ``(B, n_obs_steps, ...)``, oldest first (or
-                ``(B, ...)`` when ``n_obs_steps == 1``).
+                ``(B, ...)`` when ``n_obs_steps == 1``). One step ``(B, ...)`` when
+                ``n_obs_steps > 1`` (what LeRobot's RTC engine sends) is appended to the policy's
+                own history, as :meth:`select_action` does (an observation equal to the newest
+                one is not appended twice).
             noise: initial noise in the EEF frame (drawn if None).
             num_inference_steps: Euler steps K >= 1 (default: the config's); no retraining needed.
+            inference_delay, prev_chunk_left_over, execution_horizon: real-time chunking (LeRobot's
+                RTC engine). ``prev_chunk_left_over`` ``(T, 10)`` or ``(B, T, 10)``: the previous
+                chunk's actions not executed yet, action ``i`` due at the step of this chunk's
+                action ``i``. Its first ``inference_delay`` actions are reproduced exactly, and the
+                chunk is guided toward the rest up to ``execution_horizon``, along SE(3) geodesics
+                (:mod:`lerobot_actionflow.flow.guidance`; weights from the config's ``rtc_config``,
+                which ``lerobot-rollout`` sets, else LeRobot's defaults). Without a leftover chunk
+                (or with ``rtc_config.enabled`` False) the chunk is sampled as without RTC.
+            **kwargs: other keywords LeRobot's inference engines may pass; unused.
 
         Raises:
-            ValueError: a bad observation (:meth:`check_observation`) or K < 1.
+            ValueError: a bad observation (:meth:`check_observation`), K < 1, or a bad leftover.
         """
-        return self._predict(self.check_observation(batch, with_time=True), noise, num_inference_steps)
+        obs = self._observation_history(batch)
+        rtc = rtc_config_of(self.config)
+        if prev_chunk_left_over is None or rtc is None:
+            return self._predict(obs, noise, num_inference_steps)
+        guide = rtc_guidance(
+            prev_chunk_left_over.to(self._dtype),
+            inference_delay,
+            self.config.horizon,
+            rtc,
+            batch_size=obs[POSES_KEY].shape[0],
+            execution_horizon=execution_horizon,
+        )
+        return self._predict_rtc(obs, noise, num_inference_steps, guide)
+
+    def _observation_history(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
+        """The checked history ``(B, n_obs_steps, ...)`` of a history batch, or of one step
+        appended to the policy's queues."""
+        poses = batch.get(POSES_KEY)
+        per_step = len(self._observation_shapes[POSES_KEY])
+        one_step = self.config.n_obs_steps > 1 and isinstance(poses, Tensor) and poses.ndim == per_step + 1
+        if not one_step:
+            return self.check_observation(batch, with_time=True)
+        step = self.check_observation(batch, with_time=False)
+        newest = {k: q[-1] for k, q in self._queues.items() if k != ACTION_KEY and q}
+        if len(newest) != len(step) or any(
+            newest[k].shape != v.shape or not torch.equal(newest[k], v) for k, v in step.items()
+        ):
+            self._queues = populate_queues(self._queues, step)
+        return {k: torch.stack(list(q), dim=1) for k, q in self._queues.items() if k != ACTION_KEY}
+
+    def _predict_rtc(
+        self,
+        obs: dict[str, Tensor],
+        noise: se3_flow.LocalNoise | None,
+        num_inference_steps: int | None,
+        guide: RTCGuidance,
+    ) -> Tensor:
+        """:meth:`_predict` with real-time-chunking guidance (eager; never compiled)."""
+        cfg = self.config
+        k = check_num_inference_steps(
+            cfg.num_inference_steps if num_inference_steps is None else num_inference_steps
+        )
+        obs = self._observation_tokens(obs)
+        b = obs.p.shape[0]
+        if noise is None:
+            noise = se3_flow.draw_local_noise(
+                b, cfg.horizon, cfg.noise_sigma, cfg.noise_rotation, cfg.noise_kappa, dtype=obs.p.dtype,
+                device=obs.p.device,
+            )  # fmt: skip
+        times = schedules.make_time_grid(
+            k, cfg.time_spacing, cfg.time_spacing_rate, obs.p.dtype, obs.p.device
+        )
+        encoded = self.network.encode_observations(obs)
+        x0 = se3_flow.noise_to_world(noise, encoded.r_ref, encoded.p_ref)
+        shifts = self.network.time_shifts(times[:-1])
+
+        def velocity(x: se3_flow.PoseChunk, k: int) -> se3_flow.PoseVelocity:
+            return self.network.velocity(encoded, x, shifts=[s[k : k + 1] for s in shifts])
+
+        target = guide.target.to(device=obs.p.device)
+        if target.shape[-1] != ACTION_DIM:
+            raise ValueError(
+                f"prev_chunk_left_over must hold actions (..., {ACTION_DIM}) [x y z rot6d gripper], "
+                f"got last dimension {target.shape[-1]}"
+            )
+        weights, frozen = guide.weights.to(obs.p.device), guide.frozen.to(obs.p.device)
+        # Padding rows (weight 0) are zeros, not poses: stand the noise in for them.
+        target = guidance.select(weights > 0, se3_flow.PoseChunk(*action_to_pose(target)), x0)
+        x1 = guidance.inpaint_sample(velocity, x0, times, target, weights, frozen)
+        out = pose_to_action(x1.r, x1.p, x1.g.clamp(-1.0, 1.0))
+        # The frozen prefix is the leftover itself, bit for bit (not its Gram-Schmidt round trip).
+        return torch.where(frozen[..., None], guide.target.to(out), out)
 
     def _predict(
         self, obs: dict[str, Tensor], noise: se3_flow.LocalNoise | None, num_inference_steps: int | None
@@ -257,15 +357,23 @@ class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
     @torch.no_grad()
     def select_action(self, batch: dict[str, Tensor], noise: se3_flow.LocalNoise | None = None) -> Tensor:
         """One action ``(B, 10)``: keeps ``n_obs_steps`` of history (the first observation
-        repeated at the start) and re-plans a chunk once ``n_action_steps`` have been used."""
+        repeated at the start) and re-plans a chunk once ``n_action_steps`` have been used.
+
+        With the config's execution options (:mod:`lerobot_actionflow.policies.execution`), the
+        actions whose time passed during the inference delay are skipped, and the returned target
+        is smoothed exponentially along SE(3) geodesics."""
         # Checked before it enters the history, so that a refused observation leaves no trace.
         step = self.check_observation(batch, with_time=False)
         self._queues = populate_queues(self._queues, step)
         if not self._queues[ACTION_KEY]:
             history = {k: torch.stack(list(q), dim=1) for k, q in self._queues.items() if k != ACTION_KEY}
-            actions = self._predict(history, noise, None)
-            self._queues[ACTION_KEY].extend(actions[:, : self.config.n_action_steps].transpose(0, 1))
-        return self._queues[ACTION_KEY].popleft()
+            options = ExecutionOptions.from_config(self.config)
+            actions, seconds = timed(
+                lambda: self._predict(history, noise, None), history[POSES_KEY].device, options.measure
+            )
+            window = options.window(actions.shape[1], self.config.n_action_steps, seconds)
+            self._queues[ACTION_KEY].extend(actions[:, window].transpose(0, 1))
+        return self._smoother(self._queues[ACTION_KEY].popleft())
 
     # -- internals ---------------------------------------------------------------------------------
     def sample_from_observations(

@@ -32,7 +32,8 @@ from lerobot_actionflow.policies.config_errors import (
     require_positive,
     require_probability,
 )
-from lerobot_actionflow.schema import ENV_STATE_KEY, STATE_KEY, image_key
+from lerobot_actionflow.policies.execution import validate_execution_fields
+from lerobot_actionflow.schema import ACTION_DIM, ENV_STATE_KEY, STATE_KEY, image_key
 
 BACKBONES = ("transformer", "unet")
 TIME_SPACINGS = ("uniform", "exponential")
@@ -53,6 +54,15 @@ class EuclideanFlowConfig(PreTrainedConfig):
     Flow: ``a_t = t a_1 + (1 - t) a_0``, ``a_0 ~ N(0, I)``, target ``u = a_1 - a_0``, loss
     ``||v_theta(a_t, t, o) - u||^2``, ``t ~ U[0, 1]`` (or ``Beta``); sampling by ``K`` Euler
     steps on a uniform or exponentially spaced grid. The network sees ``time_embed_scale * t``.
+
+    Execution in real time (App. G; :mod:`lerobot_actionflow.policies.execution`), applied by
+    ``select_action``, with the same fields and defaults as ``actionflow`` (no skipping, no
+    smoothing): ``execution_delay_steps``, ``execution_delay_s``, ``measure_inference_delay``,
+    ``control_period_s``, ``target_smoothing``. Smoothing blends rotations along the SE(3)
+    geodesic, so it needs actions that are absolute EEF poses ``[x y z rot6d gripper]`` in their
+    own units: a 10-D action with ``normalization_mapping["ACTION"] = IDENTITY``. With min-max
+    normalised actions, apply :class:`lerobot_actionflow.policies.execution.TargetSmoother` to
+    the postprocessed actions instead.
     """
 
     # Inputs / output structure.
@@ -118,6 +128,13 @@ class EuclideanFlowConfig(PreTrainedConfig):
     optimizer_weight_decay: float = 1e-6
     scheduler_name: str = "cosine"
     scheduler_warmup_steps: int = 500
+
+    # Execution in real time (see the class docstring).
+    execution_delay_steps: int = 0
+    execution_delay_s: float = 0.0
+    measure_inference_delay: bool = False
+    control_period_s: float | None = None
+    target_smoothing: float = 1.0
 
     def __post_init__(self):
         super().__post_init__()
@@ -187,6 +204,7 @@ class EuclideanFlowConfig(PreTrainedConfig):
         )
         require(0 < self.crop_ratio <= 1.0, f"`crop_ratio` must be in (0, 1], got {self.crop_ratio}")
         require_ints(self, ("spatial_softmax_num_keypoints",))
+        validate_execution_fields(self)
 
     def get_optimizer_preset(self) -> AdamConfig:
         return AdamConfig(
@@ -220,6 +238,15 @@ class EuclideanFlowConfig(PreTrainedConfig):
                     )
             elif len(ft.shape) != 1:
                 raise ValueError(f"feature '{key}' must be a flat vector (dim,), got {tuple(ft.shape)}")
+        if self.target_smoothing < 1:
+            mode = self.normalization_mapping.get("ACTION", NormalizationMode.IDENTITY)
+            if tuple(action.shape) != (ACTION_DIM,) or mode is not NormalizationMode.IDENTITY:
+                raise ValueError(
+                    f"target_smoothing={self.target_smoothing} blends absolute EEF poses along SE(3) "
+                    f"geodesics: it needs a ({ACTION_DIM},) '{ACTION}' [x y z rot6d gripper] with "
+                    f"normalization_mapping['ACTION'] = IDENTITY, got shape {tuple(action.shape)} and "
+                    f"{mode}; for normalised actions apply execution.TargetSmoother after the postprocessor"
+                )
         shapes = {tuple(ft.shape) for ft in self.image_features.values()}
         if len(shapes) > 1:
             raise ValueError(f"all camera images must have the same shape, got {sorted(shapes)}")

@@ -26,9 +26,18 @@ from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_IMAGES, OBS_STATE
 from torch import Tensor, nn
 
 from lerobot_actionflow.flow.euclidean import euler_sample, linear_path
+from lerobot_actionflow.flow.guidance import inpaint_sample_euclidean
 from lerobot_actionflow.flow.schedules import make_time_grid, sample_train_times
 from lerobot_actionflow.policies.euclidean_flow.backbones import make_backbone
 from lerobot_actionflow.policies.euclidean_flow.configuration_euclidean_flow import EuclideanFlowConfig
+from lerobot_actionflow.policies.execution import (
+    ExecutionOptions,
+    RTCGuidance,
+    TargetSmoother,
+    rtc_config_of,
+    rtc_guidance,
+    timed,
+)
 from lerobot_actionflow.policies.inputs import check_num_inference_steps, check_observation
 from lerobot_actionflow.policies.loading import StrictLoading
 
@@ -100,6 +109,7 @@ class EuclideanFlowPolicy(StrictLoading, PreTrainedPolicy):
         """Clear the observation and action queues (call on ``env.reset()``)."""
         n = self.config.n_obs_steps
         self._queues = {ACTION: deque(maxlen=self.config.n_action_steps)}
+        self._smoother = TargetSmoother(self.config.target_smoothing)
         if self.config.robot_state_feature is not None:
             self._queues[OBS_STATE] = deque(maxlen=n)
         if self.config.env_state_feature is not None:
@@ -202,6 +212,10 @@ class EuclideanFlowPolicy(StrictLoading, PreTrainedPolicy):
         chunk = euler_sample(velocity, noise.to(cond.dtype), times)
         return chunk.clamp(-1.0, 1.0) if self.config.clip_sample else chunk
 
+    def supports_rtc(self) -> bool:
+        """LeRobot's real-time chunking (``lerobot-rollout --inference.type=rtc``) is supported."""
+        return True
+
     @torch.no_grad()
     def predict_action_chunk(
         self,
@@ -209,16 +223,103 @@ class EuclideanFlowPolicy(StrictLoading, PreTrainedPolicy):
         noise: Tensor | None = None,
         num_inference_steps: int | None = None,
         time_spacing: str | None = None,
+        inference_delay: int | None = None,
+        prev_chunk_left_over: Tensor | None = None,
+        execution_horizon: int | None = None,
+        **kwargs,
     ) -> Tensor:
         """The sampled actions from the current step on: ``(B, horizon - n_obs_steps + 1, A)``.
 
         ``batch`` holds the observation history ``(B, n_obs_steps, ...)``, oldest first (or
-        ``(B, ...)`` when ``n_obs_steps == 1``). The chunk the network samples starts at the oldest
-        observation step (see :class:`EuclideanFlowConfig`); the actions of the past steps are
-        dropped here.
+        ``(B, ...)`` when ``n_obs_steps == 1``). One step ``(B, ...)`` when ``n_obs_steps > 1``
+        (what LeRobot's RTC engine sends) is appended to the policy's own history, as
+        :meth:`select_action` does (an observation equal to the newest one is not appended
+        twice). The chunk the network samples starts at the oldest observation step (see
+        :class:`EuclideanFlowConfig`); the actions of the past steps are dropped here.
+
+        Real-time chunking (LeRobot's RTC engine): ``prev_chunk_left_over`` ``(T, A)`` or
+        ``(B, T, A)``, normalised like this method's output, holds the previous chunk's actions not
+        executed yet, action ``i`` due at the step of the returned chunk's action ``i``. Its first
+        ``inference_delay`` actions are reproduced exactly, and the chunk is guided toward the rest
+        up to ``execution_horizon`` (:func:`lerobot_actionflow.flow.guidance.inpaint_sample_euclidean`;
+        weights from the config's ``rtc_config``, which ``lerobot-rollout`` sets, else LeRobot's
+        defaults). Without a leftover chunk the chunk is sampled as without RTC. Other keywords
+        LeRobot's engines may pass are ignored.
         """
-        obs = self._prepare(batch, with_time=True)
-        return self._from_current_step(self.sample_chunk(obs, noise, num_inference_steps, time_spacing))
+        obs = self._observation_history(batch)
+        rtc = rtc_config_of(self.config)
+        if prev_chunk_left_over is None or rtc is None:
+            return self._from_current_step(self.sample_chunk(obs, noise, num_inference_steps, time_spacing))
+        cond = self.obs_encoder(obs)
+        guide = rtc_guidance(
+            prev_chunk_left_over.to(cond),
+            inference_delay,
+            self.config.horizon,
+            rtc,
+            batch_size=cond.shape[0],
+            execution_horizon=execution_horizon,
+            offset=self.config.n_obs_steps - 1,
+        )
+        return self._from_current_step(
+            self._sample_rtc(cond, guide, noise, num_inference_steps, time_spacing)
+        )
+
+    def _observation_history(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
+        """The prepared history ``(B, n_obs_steps, ...)`` of a history batch, or of one step
+        appended to the policy's queues."""
+        key, ft = next(iter(self.config.used_input_features.items()))
+        x = batch.get(key)
+        if self.config.n_obs_steps == 1 or not isinstance(x, Tensor) or x.ndim != len(ft.shape) + 1:
+            return self._prepare(batch, with_time=True)
+        step = self._prepare(batch, with_time=False)
+        newest = {k: q[-1] for k, q in self._queues.items() if k != ACTION and q}
+        if len(newest) != len(step) or any(
+            newest[k].shape != v.shape or not torch.equal(newest[k], v) for k, v in step.items()
+        ):
+            self._queues = populate_queues(self._queues, step)
+        return {k: torch.stack(list(q), dim=1) for k, q in self._queues.items() if k != ACTION}
+
+    def _sample_rtc(
+        self,
+        cond: Tensor,
+        guide: RTCGuidance,
+        noise: Tensor | None,
+        num_inference_steps: int | None,
+        time_spacing: str | None,
+    ) -> Tensor:
+        """:meth:`sample_chunk` with real-time-chunking guidance, from encoded observations."""
+        b = cond.shape[0]
+        shape = (b, self.config.horizon, self.config.action_feature.shape[0])
+        if noise is None:
+            noise = torch.randn(shape, dtype=cond.dtype, device=cond.device)
+        elif tuple(noise.shape) != shape:
+            raise ValueError(f"noise has shape {tuple(noise.shape)}, expected {shape}")
+        if guide.target.shape[-1] != shape[-1]:
+            raise ValueError(
+                f"prev_chunk_left_over must hold actions (..., {shape[-1]}), got last dimension "
+                f"{guide.target.shape[-1]}"
+            )
+        k = self.config.num_inference_steps if num_inference_steps is None else num_inference_steps
+        times = make_time_grid(
+            check_num_inference_steps(k),
+            time_spacing or self.config.time_spacing,
+            rate=self.config.time_spacing_rate,
+            dtype=cond.dtype,
+            device=cond.device,
+        )
+
+        def velocity(a: Tensor, k: int) -> Tensor:
+            return self.velocity_net(a, times[k].expand(a.shape[0]), cond)
+
+        target = guide.target.to(cond.device)
+        frozen = guide.frozen.to(cond.device)
+        chunk = inpaint_sample_euclidean(
+            velocity, noise.to(cond.dtype), times, target, guide.weights.to(cond.device), frozen
+        )
+        if self.config.clip_sample:
+            chunk = chunk.clamp(-1.0, 1.0)
+        # The frozen prefix is the leftover itself, even where it lies outside the clip range.
+        return torch.where(frozen[..., None], target, chunk)
 
     def _from_current_step(self, chunk: Tensor) -> Tensor:
         return chunk[:, self.config.n_obs_steps - 1 :]
@@ -226,12 +327,20 @@ class EuclideanFlowPolicy(StrictLoading, PreTrainedPolicy):
     @torch.no_grad()
     def select_action(self, batch: dict[str, Tensor], noise: Tensor | None = None) -> Tensor:
         """One action ``(B, A)`` for observations ``(B, ...)`` of the current step; a new chunk is
-        generated every ``n_action_steps`` calls from the last ``n_obs_steps`` observations."""
+        generated every ``n_action_steps`` calls from the last ``n_obs_steps`` observations.
+
+        With the config's execution options (:mod:`lerobot_actionflow.policies.execution`), the
+        actions whose time passed during the inference delay are skipped, and the returned target
+        is smoothed exponentially along SE(3) geodesics."""
         batch = {k: v for k, v in batch.items() if k != ACTION}
         obs = self._prepare(batch, with_time=False)
         self._queues = populate_queues(self._queues, obs)
         if not self._queues[ACTION]:
             history = {k: torch.stack(list(q), dim=1) for k, q in self._queues.items() if k != ACTION}
-            actions = self._from_current_step(self.sample_chunk(history, noise=noise))
-            self._queues[ACTION].extend(actions[:, : self.config.n_action_steps].transpose(0, 1))
-        return self._queues[ACTION].popleft()
+            options = ExecutionOptions.from_config(self.config)
+            device = next(self.velocity_net.parameters()).device
+            chunk, seconds = timed(lambda: self.sample_chunk(history, noise=noise), device, options.measure)
+            actions = self._from_current_step(chunk)
+            window = options.window(actions.shape[1], self.config.n_action_steps, seconds)
+            self._queues[ACTION].extend(actions[:, window].transpose(0, 1))
+        return self._smoother(self._queues[ACTION].popleft())
