@@ -1,0 +1,210 @@
+"""Exported samplers: which artefact a checkpoint may use, and that a real one gives the eager
+actions.
+
+The refusal logic runs by default with a stand-in for the compiled package (the manifest checks
+never load it); the real export (AOTInductor, minutes on a 2-core CPU) is opt-in: ``-m compile``.
+"""
+
+import logging
+import shutil
+from dataclasses import asdict
+from typing import ClassVar
+
+import pytest
+import torch
+
+from lerobot_actionflow.flow import se3 as se3_flow
+from lerobot_actionflow.policies.actionflow import exported as ex
+from lerobot_actionflow.policies.actionflow.modeling_actionflow import ActionflowPolicy
+
+from .helpers import random_batch, small_config, transform_batch
+from .test_equivariance import _equivariance_error, _random_transform, _sample_twice
+
+#: What the stand-in package returns: no sampler of a real policy gives these actions.
+MARK = 7.0
+
+
+class StandInRunner:
+    """Replaces the loaded package: records its inputs and answers :data:`MARK`."""
+
+    calls: ClassVar[list] = []
+
+    def __init__(self, package, manifest):
+        self.package, self.manifest = package, manifest
+
+    def __call__(self, inputs):
+        StandInRunner.calls.append([t.shape for t in inputs])
+        horizon = inputs[-1].shape[1]
+        return torch.full((inputs[0].shape[0], horizon, 10), MARK)
+
+
+@pytest.fixture
+def checkpoint(tmp_path, monkeypatch):
+    """A saved tiny policy with a stand-in artefact for K=2 on the CPU that matches it."""
+    monkeypatch.setattr(ex, "_Runner", StandInRunner)
+    StandInRunner.calls = []
+    torch.manual_seed(0)
+    policy = ActionflowPolicy(small_config()).eval()
+    path = tmp_path / "pretrained_model"
+    policy.save_pretrained(path)
+    write_stand_in(policy, path, k=2)
+    return path
+
+
+def write_stand_in(policy, path, k, **manifest_changes):
+    artefact = path / ex.EXPORT_DIR / ex.artefact_name("cpu", k)
+    artefact.mkdir(parents=True, exist_ok=True)
+    (artefact / ex.PACKAGE_FILE).write_bytes(b"stand-in package")
+    manifest = ex.expected_manifest(policy, "cpu", k, ex.file_fingerprint(artefact / ex.PACKAGE_FILE))
+    fields = {**asdict(manifest), "max_batch_size": 8, **manifest_changes}
+    ex.Manifest(**fields).write(artefact / ex.MANIFEST_FILE)
+    return artefact
+
+
+def chunk(policy, k=2, batch_size=2):
+    return policy.predict_action_chunk(
+        random_batch(policy.config, batch_size, torch.Generator().manual_seed(1)), num_inference_steps=k
+    )
+
+
+def used_artefact(actions) -> bool:
+    return bool((actions == MARK).all())
+
+
+def test_a_matching_artefact_is_used_from_the_first_chunk(checkpoint):
+    policy = ActionflowPolicy.from_pretrained(checkpoint)
+    assert policy.exported_samplers.keys() == [("cpu", 2)]
+    assert used_artefact(chunk(policy))
+    # poses, state, noise r / p / g: the inputs the manifest names, batch first.
+    assert StandInRunner.calls == [[(2, 2, 4, 7), (2, 2, 11), (2, 8, 3, 3), (2, 8, 3), (2, 8)]]
+
+
+def test_other_k_samples_eagerly_and_says_so(checkpoint, caplog):
+    policy = ActionflowPolicy.from_pretrained(checkpoint)
+    with caplog.at_level(logging.INFO):
+        actions = chunk(policy, k=3)
+    assert not used_artefact(actions)
+    assert "no exported sampler for K=3 on cpu (cpu K=2); sampling eagerly" in caplog.text
+
+
+def test_a_batch_above_the_exported_limit_samples_eagerly(checkpoint, caplog):
+    policy = ActionflowPolicy.from_pretrained(checkpoint)
+    with caplog.at_level(logging.INFO):
+        assert not used_artefact(chunk(policy, batch_size=9))
+    assert "batch 9 is above the exported sampler's 8" in caplog.text
+
+
+@pytest.mark.parametrize(
+    ("change", "reason"),
+    [
+        (lambda policy, path: write_stand_in(policy, path, 2, weights_sha256="0" * 64), "other weights"),
+        (lambda policy, path: write_stand_in(policy, path, 2, config_sha256="0" * 64), "other configuration"),
+        (lambda policy, path: write_stand_in(policy, path, 2, torch="1.0"), "torch version '1.0'"),
+        (lambda policy, path: write_stand_in(policy, path, 2, format=0), "format 0"),
+        (
+            lambda policy, path: (path / ex.EXPORT_DIR / "cpu_k2" / ex.PACKAGE_FILE).write_bytes(b"other"),
+            "is not the file its manifest describes",
+        ),
+        (
+            lambda policy, path: (path / ex.EXPORT_DIR / "cpu_k2" / ex.MANIFEST_FILE).write_text("{"),
+            "manifest",
+        ),
+    ],
+    ids=["weights", "config", "torch", "format", "package", "manifest"],
+)
+def test_a_mismatched_artefact_is_refused_with_a_log_line(checkpoint, caplog, change, reason):
+    torch.manual_seed(0)
+    change(ActionflowPolicy(small_config()), checkpoint)
+    with caplog.at_level(logging.WARNING):
+        policy = ActionflowPolicy.from_pretrained(checkpoint)
+    assert f"not using the exported sampler {checkpoint / ex.EXPORT_DIR / 'cpu_k2'}" in caplog.text
+    assert reason in caplog.text
+    assert policy.exported_samplers.keys() == []
+    assert not used_artefact(chunk(policy))
+
+
+def test_other_weights_in_the_checkpoint_refuse_the_artefact(checkpoint, caplog):
+    torch.manual_seed(1)  # retrained: same architecture, other weights
+    ActionflowPolicy(small_config()).save_pretrained(checkpoint)
+    with caplog.at_level(logging.WARNING):
+        policy = ActionflowPolicy.from_pretrained(checkpoint)
+    assert "other weights than the policy's" in caplog.text
+    assert not used_artefact(chunk(policy))
+
+
+def test_options_outside_the_sampler_keep_the_artefact(checkpoint):
+    policy = ActionflowPolicy.from_pretrained(checkpoint, config=small_config(n_action_steps=2))
+    assert used_artefact(chunk(policy))
+    changed = ActionflowPolicy.from_pretrained(checkpoint, config=small_config(noise_sigma=0.2))
+    assert not used_artefact(chunk(changed))
+
+
+def test_weights_changed_after_loading_drop_the_artefact(checkpoint, caplog):
+    policy = ActionflowPolicy.from_pretrained(checkpoint)
+    policy.train()
+    policy.eval()  # a mode switch alone changes no weight
+    assert used_artefact(chunk(policy))
+    policy.load_state_dict(policy.state_dict())  # the same weights, written again
+    assert used_artefact(chunk(policy))
+    with torch.no_grad():
+        policy.network.head[1].bias.add_(0.1)  # e.g. an optimiser step
+    with caplog.at_level(logging.WARNING):
+        assert not used_artefact(chunk(policy))
+    assert "weights changed since the exported sampler" in caplog.text
+
+
+def test_save_pretrained_carries_the_artefact(checkpoint, tmp_path):
+    policy = ActionflowPolicy.from_pretrained(checkpoint)
+    policy.save_pretrained(tmp_path / "copy")
+    shutil.rmtree(checkpoint)
+    again = ActionflowPolicy.from_pretrained(tmp_path / "copy")
+    assert used_artefact(chunk(again))
+
+
+def test_export_refuses_bad_arguments(tmp_path):
+    policy = ActionflowPolicy(small_config()).eval()
+    with pytest.raises(ValueError, match="num_inference_steps"):
+        ex.export_sampler(policy, tmp_path, 0)
+    with pytest.raises(ValueError, match="device must be"):
+        ex.export_sampler(policy, tmp_path, 2, device="mps")
+    assert not (tmp_path / ex.EXPORT_DIR).exists()
+
+
+def test_export_command_names_a_missing_checkpoint(tmp_path, capsys):
+    from lerobot_actionflow.export import main
+
+    assert main([str(tmp_path / "nowhere")]) == 2
+    assert f"no checkpoint at {tmp_path / 'nowhere'}" in capsys.readouterr().err
+
+
+@pytest.mark.compile
+def test_exported_sampler_round_trip_equals_eager_and_is_equivariant(tmp_path, caplog):
+    from lerobot_actionflow.export import main
+
+    torch.manual_seed(0)
+    ActionflowPolicy(small_config()).save_pretrained(tmp_path / "pretrained_model")
+    assert main([str(tmp_path), "--steps", "2"]) == 0  # checks exported == eager itself, to 1e-5
+
+    policy = ActionflowPolicy.from_pretrained(tmp_path / "pretrained_model")
+    policy.save_pretrained(tmp_path / "copy")
+    policy = ActionflowPolicy.from_pretrained(tmp_path / "copy")
+    runner = policy.exported_samplers._runners[("cpu", 2)]
+    assert isinstance(runner, ex._Runner)
+    gen = torch.Generator().manual_seed(3)
+    batch = random_batch(policy.config, 3, gen)
+    noise = se3_flow.draw_local_noise(3, policy.config.horizon, 0.1, generator=gen)
+    a_exported = policy.predict_action_chunk(batch, noise=noise, num_inference_steps=2)
+    eager = ActionflowPolicy.from_pretrained(tmp_path / "copy")
+    eager.exported_samplers = None
+    a_eager = eager.predict_action_chunk(batch, noise=noise, num_inference_steps=2)
+    assert (a_exported - a_eager).abs().max() <= 1e-5
+
+    # Equivariance through the exported path; the control (an untransformed result) must fail.
+    r_d, p_d = _random_transform(gen, torch.float32)
+    policy.config.num_inference_steps = 2
+    pose, pose_t = _sample_twice(policy, batch, noise, r_d, p_d)
+    assert _equivariance_error(pose, pose_t, r_d, p_d) <= 1e-4
+    assert _equivariance_error(pose, pose, r_d, p_d) > 1e-2
+    with caplog.at_level(logging.INFO):
+        policy.predict_action_chunk(transform_batch(batch, r_d, p_d), num_inference_steps=4)
+    assert "no exported sampler for K=4" in caplog.text
