@@ -20,7 +20,7 @@ from lerobot_actionflow.envs.scene_transform import SceneTransform
 from lerobot_actionflow.envs.tasks import TASKS, Entity, TaskSpec, get_task
 
 # Fill the task table, robomimic's tasks first (this order is the order of GYM_IDS).
-for _module in ("robomimic_tasks", "mimicgen_tasks"):
+for _module in ("robomimic_tasks", "mimicgen_tasks", "mug_hang_tasks"):
     importlib.import_module(f"{__name__}.{_module}")
 
 GYM_IDS: list[str] = register_gym_envs()
