@@ -6,7 +6,8 @@ Objects (robosuite ``CompositeObject`` s, free joints):
   handle on its local +x side: a rectangular loop of three boxes in the mug's x-z plane whose
   opening is 0.035 m (radial, x) by 0.05 m (vertical, z), its centre (site ``mug_handle``) at
   ``(HANDLE_X, 0, 0)``; the opening's normal is the mug's local y axis. A dark disc marks the
-  opening on top (visual only).
+  opening on top (visual only). Its free joint is lightly damped (``MUG_DAMPING``), so that
+  a mug hanging on the round peg stops rocking.
 - **hanger**: a heavy 0.14 x 0.14 m base plate, a vertical post (radius 0.01 m) and, from the
   post's top (``PEG_ROOT_Z`` = 0.20 m over the table), a peg (radius 0.006 m, length 0.12 m)
   pointing along the hanger's local +x and rising ``PEG_ANGLE`` = 30 deg above the horizontal.

@@ -13,7 +13,8 @@ peg, the body on its left or its right (whichever the wrist reaches, at random).
 a position ``q`` of the opening's centre, turned into the EEF pose that puts it there with the
 mug held per its grasp ``G``: ``T_mug = (R_m, q - R_m h)``, ``R_m = r G_r``, ``T_eef = T_mug
 G^-1``. The centre goes to ``a + (L + standoff) u`` (in front of the tip, on the peg's axis),
-slides along ``-u`` to ``a + depth u`` (the peg now through the opening), drops until the
+slides along ``-u`` to ``a + depth u`` (the peg now through the opening; ``G`` is measured
+again just before, as the mug may have swung in the fingers while carried), drops until the
 handle's top bar rests on the peg, and the hand opens and rises: the mug swings down about the
 peg and settles.
 """
