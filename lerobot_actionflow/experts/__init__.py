@@ -12,6 +12,7 @@ from lerobot_actionflow.experts.base import Expert, Waypoint, WaypointExpert
 from lerobot_actionflow.experts.can import CanExpert
 from lerobot_actionflow.experts.coffee import CoffeeExpert
 from lerobot_actionflow.experts.lift import LiftExpert
+from lerobot_actionflow.experts.mug_hang import MugHangExpert
 from lerobot_actionflow.experts.square import SquareExpert
 from lerobot_actionflow.experts.stack_three import StackThreeExpert
 from lerobot_actionflow.experts.threading import ThreadingExpert
@@ -36,6 +37,7 @@ for _cls in (
     ThreadingExpert,
     CoffeeExpert,
     ToolHangExpert,
+    MugHangExpert,
 ):
     register_expert(_cls)
 

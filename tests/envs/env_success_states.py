@@ -1,5 +1,6 @@
 """Constructed success states, one per task family: object poses set through MuJoCo data
-(kinematics only, no physics), far from the gripper, so that each task's check must say yes."""
+(kinematics only, no physics; MugHang's then simulated, as its check wants a settled mug), far
+from the gripper, so that each task's check must say yes."""
 
 from __future__ import annotations
 
@@ -102,6 +103,25 @@ def coffee(env) -> None:
     set_lid(env, 0.0)
 
 
+def mug_hang(env, depth: float = 0.07, steps: int = 60) -> None:
+    """Mug upright, threaded on the peg ``depth`` along it from its root with the handle's top
+    bar 2 mm over it, then simulated (the arm holding still, open) until it hangs settled: the
+    check counts still steps, so a kinematic pose alone is never a success."""
+    from lerobot_actionflow.envs import mug_hang as mh
+
+    rs = env.robosuite_env
+    root, u = rs.peg_frame()
+    along = np.array([u[0], u[1], 0.0]) / np.linalg.norm(u[:2])
+    r = np.stack([np.cross(along, Z), along, Z], axis=1)  # mug x radial, y along the peg, z up
+    centre = root + depth * u + (mh.HOLE_HEIGHT / 2 - mh.PEG_RADIUS - 0.002) * Z
+    env.set_body_pose("mug_root", centre - r @ np.array([mh.HANDLE_X, 0.0, 0.0]), matrix_to_quaternion(r))
+    pos, mat = env.eef_pose()
+    hold = np.concatenate([pos, mat[:, 0], mat[:, 1], [-1.0]]).astype(np.float32)
+    for _ in range(steps):
+        if env.step(hold)[4]["is_success"]:
+            return
+
+
 def construct_success(env) -> None:
     """Put ``env`` (a :class:`PoseTokenEnv`) into a success state of its task."""
     name = env.task
@@ -113,4 +133,6 @@ def construct_success(env) -> None:
         return three_piece_assembly(env)
     if name.startswith("Coffee"):
         return coffee(env)
+    if name.startswith("MugHang"):
+        return mug_hang(env)
     return {"Lift": lift, "Can": can, "Square": square, "ToolHang": tool_hang}[name](env)
