@@ -9,19 +9,22 @@ exposed as ``16 N + 2`` named floats, three blocks in this order:
 =============================  ==========================================  =================
 block (schema key)             names                                       width
 =============================  ==========================================  =================
-``observation.state``          ``state.eef.<c9>.pos``,                     ``11``
-                               ``state.gripper.q0.pos``, ``...q1.pos``
+``observation.state``          ``agent_pos.eef.<c9>.pos``,                 ``11``
+                               ``agent_pos.gripper.q0.pos``, ``...q1.pos``
 ``observation.environment_     ``environment_state.<entity>.<c9>.pos``     ``9 (N - 1)``
 state``                        (rows 1.. in task order)
 ``observation.poses``          ``poses.<token>.<c7>.pos`` (row-major,      ``7 N``
                                token ``eef`` then the entities)
 =============================  ==========================================  =================
 
-where ``<c9>`` runs over the pose9 components ``x y z r00 r10 r20 r01 r11 r21`` and ``<c7>``
-over the pose7 components ``x y z qw qx qy qz``. The values are the env's own float32 numbers,
-so splitting the flat vector (:func:`split_flat_observation`) gives back exactly the dataset's
-features. The action is ``10`` named floats ``target.<c9>.pos`` then ``gripper.pos``, in the
-schema's action order ``[x, y, z, rot6d, gripper]``.
+Each name starts with the env's observation key (``agent_pos``, ``environment_state``,
+``poses``); not with ``state.``, which LeRobot strips from robot feature names when it builds
+dataset features (``aggregate_pipeline_dataset_features``). ``<c9>`` runs over the pose9
+components ``x y z r00 r10 r20 r01 r11 r21`` and ``<c7>`` over the pose7 components
+``x y z qw qx qy qz``. The values are the env's own float32 numbers, so splitting the flat
+vector (:func:`split_flat_observation`) gives back exactly the dataset's features. The action
+is ``10`` named floats ``target.<c9>.pos`` then ``gripper.pos``, in the schema's action order
+``[x, y, z, rot6d, gripper]``.
 
 Torch-free: the split works on numpy arrays and torch tensors alike (slicing and reshaping of
 the last axis).
@@ -66,10 +69,10 @@ def flat_width(num_tokens: int) -> int:
 def observation_names(spec: TaskSpec) -> list[str]:
     """The flat observation's feature names, in vector order (see the module table)."""
     entities = [e.name for e in spec.entities]
-    names = [f"state.{EEF_TOKEN}.{c}{SUFFIX}" for c in POSE9_COMPONENTS]
-    names += [f"state.gripper.q{i}{SUFFIX}" for i in range(GRIPPER_QPOS_DIM)]
-    names += [f"environment_state.{e}.{c}{SUFFIX}" for e in entities for c in POSE9_COMPONENTS]
-    names += [f"poses.{t}.{c}{SUFFIX}" for t in (EEF_TOKEN, *entities) for c in POSE7_COMPONENTS]
+    names = [f"{ENV_AGENT_POS}.{EEF_TOKEN}.{c}{SUFFIX}" for c in POSE9_COMPONENTS]
+    names += [f"{ENV_AGENT_POS}.gripper.q{i}{SUFFIX}" for i in range(GRIPPER_QPOS_DIM)]
+    names += [f"{ENV_STATE}.{e}.{c}{SUFFIX}" for e in entities for c in POSE9_COMPONENTS]
+    names += [f"{ENV_POSES}.{t}.{c}{SUFFIX}" for t in (EEF_TOKEN, *entities) for c in POSE7_COMPONENTS]
     if len(set(names)) != len(names):
         raise ValueError(f"task {spec.name}: entity names give duplicate feature names: {entities}")
     return names
