@@ -278,6 +278,12 @@ class ActionFlowSim(Robot):
             )
             self.episodes.append(result)
         logger.info("%s %s episode %s", self.name, self.spec.name, asdict(result))
+        if result.actions_replaced > 0.2 * max(result.actions_received, 1):
+            logger.warning(
+                "%s: %d of %d actions were replaced before a step applied them: the rollout runs "
+                "faster than the control rate; pass --fps=%d",
+                self.name, result.actions_replaced, result.actions_received, CONTROL_FREQ,
+            )  # fmt: skip
         if self.config.results_path:
             with open(self.config.results_path, "a") as f:
                 f.write(json.dumps({"task": self.spec.name, **asdict(result)}) + "\n")
