@@ -10,13 +10,12 @@ already holds ``observation.poses`` (a dataset, ``lerobot-eval``'s env) passes u
 step can sit in every ActionFlow preprocessor.
 
 :func:`add_robot_observation_step` inserts the step into a saved checkpoint's preprocessor
-(``python -m lerobot_actionflow.robots.processor CHECKPOINT``), for checkpoints whose
+(command line: :mod:`lerobot_actionflow.robots.prepare_checkpoint`), for checkpoints whose
 preprocessor does not have it.
 """
 
 from __future__ import annotations
 
-import argparse
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -106,15 +105,3 @@ def add_robot_observation_step(pretrained_path: str | Path) -> bool:
     pipeline.steps.insert(at, RobotObservationToPolicyStep(num_tokens=n))
     pipeline.save_pretrained(path)
     return True
-
-
-def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("checkpoint", type=Path, help="a pretrained_model folder")
-    args = parser.parse_args(argv)
-    added = add_robot_observation_step(args.checkpoint)
-    print(f"{args.checkpoint}: {'added' if added else 'already has'} step {REGISTRY_NAME}")
-
-
-if __name__ == "__main__":
-    main()
