@@ -44,10 +44,21 @@ def _eef_action(robot, obs, dz=0.0, gripper=-1.0) -> dict:
     return {**dict(zip(names[:9], pose9.tolist(), strict=True)), names[9]: gripper}
 
 
+def _wait_for(predicate, timeout: float) -> bool:
+    end = time.perf_counter() + timeout
+    while time.perf_counter() < end:
+        if predicate():
+            return True
+        time.sleep(0.02)
+    return predicate()
+
+
 def test_simulation_advances_on_the_wall_clock_and_holds_the_last_target(make_sim):
+    # Bounds loose enough for a starved CPU (a late step is skipped, never made up in a burst).
+    t0 = time.perf_counter()
     idle = make_sim(wait_for_first_action=False)
-    time.sleep(0.5)
-    assert 0.6 * 0.5 * CONTROL_FREQ <= idle.sim_steps <= 0.5 * CONTROL_FREQ + 2, idle.sim_steps
+    assert _wait_for(lambda: idle.sim_steps >= 5, timeout=5.0), idle.sim_steps
+    assert idle.sim_steps <= (time.perf_counter() - t0) * CONTROL_FREQ + 1  # never ahead of the clock
 
     # Control: a robot waiting for its first action does not step; once it has one, it steps
     # without further actions, applying the held target (the EEF climbs 5 cm).
@@ -56,11 +67,9 @@ def test_simulation_advances_on_the_wall_clock_and_holds_the_last_target(make_si
     assert waiting.sim_steps == 0
     obs0 = waiting.get_observation()
     waiting.send_action(_eef_action(waiting, obs0, dz=0.05))
-    time.sleep(1.2)
-    steps = waiting.sim_steps
-    assert steps >= 0.6 * 1.2 * CONTROL_FREQ, steps
-    z0, z1 = obs0["agent_pos.eef.z.pos"], waiting.get_observation()["agent_pos.eef.z.pos"]
-    assert z1 - z0 > 0.03, (z0, z1)
+    z0 = obs0["agent_pos.eef.z.pos"]
+    climbed = _wait_for(lambda: waiting.get_observation()["agent_pos.eef.z.pos"] - z0 > 0.03, timeout=5.0)
+    assert climbed, (waiting.sim_steps, waiting.get_observation()["agent_pos.eef.z.pos"] - z0)
 
 
 def test_observations_are_the_datasets(make_sim):
