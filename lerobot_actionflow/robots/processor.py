@@ -6,8 +6,9 @@ policies were trained on the dataset's ``observation.state (11)``,
 ``observation.environment_state (9 (N - 1))`` and ``observation.poses (N, 7)``.
 :class:`RobotObservationToPolicyStep` (registry name ``actionflow_robot_observation``) splits
 the former into the latter inside the policy's preprocessor, before normalisation. A batch that
-already holds ``observation.poses`` (a dataset, ``lerobot-eval``'s env) passes unchanged, so the
-step can sit in every ActionFlow preprocessor.
+already holds the dataset's features (``observation.poses``, or an ``observation.state`` of the
+dataset's width: a training batch, ``lerobot-eval``'s env) passes unchanged, so the step can sit
+in every preprocessor of a policy trained on our datasets.
 
 :func:`add_robot_observation_step` inserts the step into a saved checkpoint's preprocessor
 (command line: :mod:`lerobot_actionflow.robots.prepare_checkpoint`), for checkpoints whose
@@ -29,6 +30,7 @@ from lerobot_actionflow.schema import (
     ENV_STATE_KEY,
     POSE9_DIM,
     POSES_KEY,
+    STATE_DIM,
     STATE_KEY,
     feature_shapes,
 )
@@ -54,11 +56,12 @@ class RobotObservationToPolicyStep(ObservationProcessorStep):
             raise ValueError(f"num_tokens must be >= 1, got {self.num_tokens}")
 
     def observation(self, observation: dict[str, Any]) -> dict[str, Any]:
-        if POSES_KEY in observation:
-            return observation
-        if STATE_KEY not in observation:
+        state = observation.get(STATE_KEY)
+        if POSES_KEY in observation or (state is not None and state.shape[-1] == STATE_DIM):
+            return observation  # the dataset's features already (training, lerobot-eval)
+        if state is None:
             raise ValueError(f"observation has neither '{POSES_KEY}' nor a flat robot '{STATE_KEY}'")
-        observation.update(split_flat_observation(observation[STATE_KEY], self.num_tokens))
+        observation.update(split_flat_observation(state, self.num_tokens))
         return observation
 
     def get_config(self) -> dict[str, Any]:

@@ -68,10 +68,15 @@ def test_step_declares_the_dataset_features_and_passes_dataset_batches_through()
         k: s for k, s in feature_shapes(n).items() if k != "action"
     }
     assert obs[ENV_STATE_KEY].type is FeatureType.ENV
-    batch = {POSES_KEY: torch.zeros(1, n, 7), STATE_KEY: torch.ones(1, 11)}
-    assert step.observation(dict(batch)).keys() == batch.keys()  # already structured: untouched
-    with pytest.raises(ValueError, match=r"last dimension 50 .* got shape \(1, 11\)"):
-        step.observation({STATE_KEY: torch.ones(1, 11)})
+    # Dataset batches (with or without pose tokens, with a time axis) pass untouched.
+    for batch in (
+        {POSES_KEY: torch.zeros(4, 2, n, 7), STATE_KEY: torch.ones(4, 2, 11)},
+        {STATE_KEY: torch.ones(4, 2, 11), ENV_STATE_KEY: torch.ones(4, 2, env_state_dim(n))},
+    ):
+        out = step.observation(dict(batch))
+        assert out.keys() == batch.keys() and all(out[k] is batch[k] for k in batch)
+    with pytest.raises(ValueError, match=r"last dimension 50 .* got shape \(1, 12\)"):
+        step.observation({STATE_KEY: torch.ones(1, 12)})
 
 
 def test_action_dict_is_checked_key_by_key():
