@@ -1,4 +1,5 @@
-"""Registration of every LeRobot policy and env type this package provides.
+"""Registration of every LeRobot policy, env and robot type (and processor step) this package
+provides.
 
 LeRobot finds policies by naming convention once their config class is registered with
 ``PreTrainedConfig.register_subclass``, which happens when the configuration module is
@@ -9,11 +10,14 @@ from __future__ import annotations
 
 import importlib
 
-#: Modules whose import registers a LeRobot config subclass (policy or env type).
+#: Modules whose import registers a LeRobot config subclass (policy, env or robot type) or a
+#: processor step that saved pipelines name.
 PLUGIN_MODULES: tuple[str, ...] = (
     "lerobot_actionflow.policies.actionflow.configuration_actionflow",
     "lerobot_actionflow.policies.euclidean_flow.configuration_euclidean_flow",
     "lerobot_actionflow.envs.configuration",
+    "lerobot_actionflow.robots.actionflow_sim.config_actionflow_sim",
+    "lerobot_actionflow.robots.processor",
 )
 
 

@@ -17,6 +17,8 @@ def test_register_third_party_plugins_imports_our_package():
         "assert {'actionflow', 'euclidean_flow'} <= set(PreTrainedConfig.get_known_choices())\n"
         "from lerobot.envs.configs import EnvConfig\n"
         "assert 'actionflow' in EnvConfig.get_known_choices()\n"
+        "from lerobot.robots.config import RobotConfig\n"
+        "assert 'actionflow_sim' in RobotConfig.get_known_choices()\n"
         "print('registered:', ','.join(p.REGISTERED))\n"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
