@@ -1,10 +1,11 @@
 """Pre/post-processing pipelines of the ActionFlow policy.
 
-Pre: rename -> add batch dim -> device -> normalise. Normalisation is restricted, per feature,
-to what may be normalised: ``observation.poses`` and ``action`` are passed through untouched
-whatever ``normalization_mapping`` says, because mean/std scaling of positions would break
-SE(3) equivariance (the network's adaptation module handles scale). Post: to CPU (actions are
-absolute poses already).
+Pre: rename -> split a robot's flat observation into the dataset's features (``lerobot-rollout``;
+:mod:`lerobot_actionflow.robots.processor`) -> add batch dim -> device -> normalise.
+Normalisation is restricted, per feature, to what may be normalised: ``observation.poses`` and
+``action`` are passed through untouched whatever ``normalization_mapping`` says, because
+mean/std scaling of positions would break SE(3) equivariance (the network's adaptation module
+handles scale). Post: to CPU (actions are absolute poses already).
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from lerobot.processor.factory import make_default_policy_processor_steps, make_
 from lerobot.processor.normalize_processor import NormalizerProcessorStep, UnnormalizerProcessorStep
 
 from lerobot_actionflow.policies.actionflow.configuration_actionflow import ActionflowConfig
+from lerobot_actionflow.robots.processor import RobotObservationToPolicyStep, num_tokens_of
 from lerobot_actionflow.schema import ACTION_KEY, POSES_KEY
 
 #: Features never normalised: they are poses.
@@ -43,7 +45,15 @@ def make_actionflow_pre_post_processors(
         norm_map=config.normalization_mapping,
         stats=dataset_stats,
     )
+    # A robot's flat observation (lerobot-rollout) back into the dataset's features.
+    robot_observation = RobotObservationToPolicyStep(num_tokens=num_tokens_of(config))
     return make_policy_processor_pipelines(
-        input_steps=[steps.rename_observations, steps.add_batch_dim, steps.to_device, normalize],
+        input_steps=[
+            steps.rename_observations,
+            robot_observation,
+            steps.add_batch_dim,
+            steps.to_device,
+            normalize,
+        ],
         output_steps=[unnormalize, steps.to_cpu],
     )

@@ -1,6 +1,7 @@
 """Pre/post-processors of ``euclidean_flow``: LeRobot's standard pipelines.
 
-Pre: rename -> add batch dim -> device -> normalise (state, environment state and actions
+Pre: rename -> split a robot's flat observation into the dataset's features (``lerobot-rollout``;
+:mod:`lerobot_actionflow.robots.processor`) -> add batch dim -> device -> normalise (state, environment state and actions
 min-max to ``[-1, 1]``, images mean/std). Post: unnormalise actions -> CPU.
 
 Only the features the policy reads are normalised: other observation keys (for example
@@ -18,6 +19,7 @@ from lerobot.processor.factory import make_default_policy_processor_steps, make_
 from lerobot.processor.normalize_processor import NormalizerProcessorStep
 
 from lerobot_actionflow.policies.euclidean_flow.configuration_euclidean_flow import EuclideanFlowConfig
+from lerobot_actionflow.robots.processor import RobotObservationToPolicyStep, num_tokens_of
 
 
 def make_euclidean_flow_pre_post_processors(
@@ -34,7 +36,9 @@ def make_euclidean_flow_pre_post_processors(
         norm_map=config.normalization_mapping,
         stats=dataset_stats,
     )
+    # A robot's flat observation (lerobot-rollout) back into the dataset's features.
+    robot_observation = RobotObservationToPolicyStep(num_tokens=num_tokens_of(config))
     return make_policy_processor_pipelines(
-        input_steps=[s.rename_observations, s.add_batch_dim, s.to_device, normalize],
+        input_steps=[s.rename_observations, robot_observation, s.add_batch_dim, s.to_device, normalize],
         output_steps=[s.unnormalize, s.to_cpu],
     )
