@@ -1,6 +1,7 @@
-"""A checkpoint prepared for a robot (:func:`add_robot_observation_step`) gives, on the robot's
-flat observation, exactly the actions it gives on the dataset's features; unprepared, it refuses
-the flat observation. For ActionFlow, ``euclidean_flow`` and LeRobot's ``diffusion``."""
+"""A checkpoint ready for a robot gives, on the robot's flat observation, exactly the actions it
+gives on the dataset's features. ActionFlow's and ``euclidean_flow``'s preprocessors carry the
+splitting step from the start; a LeRobot ``diffusion`` checkpoint refuses the flat observation
+until prepared (:func:`add_robot_observation_step`)."""
 
 from pathlib import Path
 
@@ -91,8 +92,13 @@ def test_prepared_checkpoint_acts_on_the_flat_observation_as_on_the_dataset(kind
     flat = flatten_observation(env_obs, names)
     robot_frame = {STATE_KEY: np.array([flat[k] for k in names], dtype=np.float32)}
 
-    # Control: the unprepared checkpoint refuses the robot's flat state (wrong width).
-    with pytest.raises(Exception, match=r"observation\.state|shape|size"):
-        _actions(path, robot_frame)
-    assert add_robot_observation_step(path)
+    if kind == "diffusion":
+        # LeRobot's own preprocessor: refuses the robot's flat state (wrong width) until prepared.
+        with pytest.raises(Exception, match=r"observation\.state|shape|size"):
+            _actions(path, robot_frame)
+        assert add_robot_observation_step(path)
+        assert not add_robot_observation_step(path)  # idempotent
+    else:
+        # Our policies' preprocessors carry the step from the start.
+        assert not add_robot_observation_step(path)
     torch.testing.assert_close(_actions(path, robot_frame), _actions(path, dataset_frame), rtol=0, atol=0)
