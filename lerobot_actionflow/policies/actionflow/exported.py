@@ -83,6 +83,16 @@ SAMPLER_INDEPENDENT_FIELDS = frozenset(
 )
 
 
+#: AOTInductor options per device type. Both freeze the weights (constants inductor can fold and
+#: pre-pack). On the CPU, ``max_autotune`` with the C++ GEMM template times inductor's own
+#: micro-kernel GEMMs against ATen's for each matmul and keeps the faster: at ActionFlow's
+#: batch-1 sizes (16-26 tokens) they are 2-7x faster than oneDNN's (benchmarks/RESULTS.md).
+INDUCTOR_CONFIGS = {
+    "cpu": {"freezing": True, "max_autotune": True, "max_autotune_gemm_backends": "CPP,ATEN"},
+    "cuda": {"freezing": True},
+}
+
+
 def artefact_name(device: str, num_inference_steps: int) -> str:
     """Directory name of the artefact for a device type and K, e.g. ``cpu_k4``."""
     return f"{device}_k{num_inference_steps}"
@@ -289,9 +299,8 @@ def export_sampler(
     staging = _staging_dir(final)
     try:
         package = staging / PACKAGE_FILE
-        # Frozen weights are constants inductor can fold and pre-pack for its matmuls.
         torch._inductor.aoti_compile_and_package(
-            exported, package_path=str(package), inductor_configs={"freezing": True}
+            exported, package_path=str(package), inductor_configs=INDUCTOR_CONFIGS[device]
         )
         manifest = expected_manifest(policy, device, num_inference_steps, file_fingerprint(package))
         Manifest(**{**asdict(manifest), "max_batch_size": max_batch_size}).write(staging / MANIFEST_FILE)

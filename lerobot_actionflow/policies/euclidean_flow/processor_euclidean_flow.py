@@ -1,8 +1,9 @@
 """Pre/post-processors of ``euclidean_flow``: LeRobot's standard pipelines.
 
 Pre: rename -> split a robot's flat observation into the dataset's features (``lerobot-rollout``;
-:mod:`lerobot_actionflow.robots.processor`) -> add batch dim -> device -> normalise (state, environment state and actions
-min-max to ``[-1, 1]``, images mean/std). Post: unnormalise actions -> CPU.
+:mod:`lerobot_actionflow.robots.processor`) -> add batch dim -> device -> normalise (state,
+environment state and actions min-max to ``[-1, 1]``, images mean/std). Post: unnormalise
+actions -> CPU.
 
 Only the features the policy reads are normalised: other observation keys (for example
 ``observation.poses``, which is typed STATE by LeRobot) pass through untouched, explicitly
