@@ -77,7 +77,9 @@ class ActionflowConfig(PreTrainedConfig):
             ``compile_mode`` ("reduce-overhead" replays CUDA graphs), on the CPU with frozen,
             pre-packed weights and inductor's C++ wrapper (about 2.5x faster than eager at batch
             1; benchmarks/RESULTS.md). None (default): on when the policy runs on a CUDA device,
-            off on the CPU, where the first chunk of every K compiles for 2-3 minutes.
+            off on the CPU, where the first chunk of every K compiles for 2-3 minutes. An
+            artefact of ``actionflow-export`` stored with the checkpoint takes precedence
+            (:mod:`lerobot_actionflow.policies.actionflow.exported`).
 
     Execution in real time (App. G; :mod:`lerobot_actionflow.policies.execution`), applied by
     ``select_action``; the defaults keep the plain behaviour (no skipping, no smoothing):
