@@ -8,4 +8,8 @@ only registers the config; the modeling module is imported by LeRobot's factory 
 
 from lerobot_actionflow.policies.euclidean_flow.configuration_euclidean_flow import EuclideanFlowConfig
 
+# The processor step every new checkpoint's preprocessor names: registered with the policy, so
+# that loading a checkpoint's processors works in any process that can load its policy.
+from lerobot_actionflow.robots import processor as _robot_observation_step  # noqa: F401
+
 __all__ = ["EuclideanFlowConfig"]
