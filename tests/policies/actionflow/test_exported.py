@@ -208,3 +208,13 @@ def test_exported_sampler_round_trip_equals_eager_and_is_equivariant(tmp_path, c
     with caplog.at_level(logging.INFO):
         policy.predict_action_chunk(transform_batch(batch, r_d, p_d), num_inference_steps=4)
     assert "no exported sampler for K=4" in caplog.text
+
+
+def test_export_command_finds_the_checkpoint_in_a_training_output(tmp_path):
+    from lerobot_actionflow.export import resolve_pretrained_dir
+
+    ckpt = tmp_path / "run" / "checkpoints" / "last" / "pretrained_model"
+    ActionflowPolicy(small_config()).save_pretrained(ckpt)
+    assert resolve_pretrained_dir(tmp_path / "run") == ckpt
+    assert resolve_pretrained_dir(ckpt.parent) == ckpt
+    assert resolve_pretrained_dir(ckpt) == ckpt
