@@ -120,7 +120,28 @@ def worker(args) -> dict:
                 sync()
                 times.append(1e3 * (time.perf_counter() - t0))
             out[f"K{k}"] = {"first_call_s": round(first, 3), **_summary(times)}
+            if args.worker == "exported":
+                out[f"K{k}"]["package_only"] = _package_only(policy, obs, k, args.repeats)
     return out
+
+
+def _package_only(policy, obs: dict, k: int, repeats: int) -> dict:
+    """The artefact's own call on prepared inputs: what ``predict_action_chunk`` adds around it
+    (input checks, noise drawing, the staleness check) is the difference."""
+    from lerobot_actionflow.flow import se3 as se3_flow
+    from lerobot_actionflow.schema import POSES_KEY, STATE_KEY
+
+    cfg = policy.config
+    checked = policy.check_observation(obs)
+    noise = se3_flow.draw_local_noise(1, cfg.horizon, cfg.noise_sigma, cfg.noise_rotation, cfg.noise_kappa)
+    runner = policy.exported_samplers._runners[("cpu", k)]
+    inputs = [checked[POSES_KEY], checked[STATE_KEY], noise.r, noise.p, noise.g]
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        runner(inputs)
+        times.append(1e3 * (time.perf_counter() - t0))
+    return _summary(times)
 
 
 # -- parent ---------------------------------------------------------------------------------------
