@@ -85,7 +85,7 @@ def worker(args) -> dict:
         elif not policy.exported_samplers or not policy.exported_samplers.keys():
             raise SystemExit(f"no exported sampler was accepted for {args.checkpoint} (see the log above)")
         else:
-            out["exported"] = [f"{d} K={k}" for d, k in policy.exported_samplers.keys()]
+            out["exported"] = [f"{d} K={k} batch {b}" for d, k, b in policy.exported_samplers.keys()]
         obs = {k: v for k, v in make_batch(policy.config, 1, device).items() if k != ACTION_KEY}
 
         def set_steps(k):
@@ -134,7 +134,7 @@ def _package_only(policy, obs: dict, k: int, repeats: int) -> dict:
     cfg = policy.config
     checked = policy.check_observation(obs)
     noise = se3_flow.draw_local_noise(1, cfg.horizon, cfg.noise_sigma, cfg.noise_rotation, cfg.noise_kappa)
-    runner = policy.exported_samplers._runners[("cpu", k)]
+    runner = policy.exported_samplers._runners[("cpu", k, 1)]
     inputs = [checked[POSES_KEY], checked[STATE_KEY], noise.r, noise.p, noise.g]
     times = []
     for _ in range(repeats):
@@ -160,7 +160,7 @@ def make_checkpoint(workdir: Path, device: str, steps: list[int]) -> tuple[Path,
         torch.manual_seed(0)
         workload = argparse.Namespace(entities=5, n_obs_steps=2, horizon=16, layers=4, image=False)
         ActionflowPolicy(make_config(workload, "cpu", False)).save_pretrained(ckpt)
-    missing = [k for k in steps if not (ckpt / EXPORT_DIR / artefact_name(device, k)).is_dir()]
+    missing = [k for k in steps if not (ckpt / EXPORT_DIR / artefact_name(device, k, 1)).is_dir()]
     export = {}
     if missing:
         t0 = time.perf_counter()

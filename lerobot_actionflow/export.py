@@ -1,15 +1,16 @@
 """``actionflow-export``: compile a trained ActionFlow checkpoint's sampler ahead of time.
 
-    actionflow-export CHECKPOINT [--steps 2 4] [--device cpu|cuda] [--max-batch-size 256]
+    actionflow-export CHECKPOINT [--steps 2 4] [--batch-sizes 1] [--device cpu|cuda]
 
 ``CHECKPOINT`` is a ``pretrained_model`` directory, or a directory holding one (a checkpoint step
 directory, or a training output whose ``checkpoints/last/pretrained_model`` is used). For each K
-the sampler is exported with ``torch.export`` and compiled by AOTInductor (a few minutes per K on
-a 2-core CPU), then written to ``pretrained_model/exported_sampler/<device>_k<K>/`` (see
+and batch size (1 for a robot; the number of envs for ``lerobot-eval``) the sampler is exported
+with ``torch.export`` and compiled by AOTInductor (minutes each on a 2-core CPU), then written to
+``pretrained_model/exported_sampler/<device>_k<K>_b<B>/`` (see
 :mod:`lerobot_actionflow.policies.actionflow.exported`). ``from_pretrained``, and so
 ``lerobot-eval`` and any deployment loop, then samples with it from the first chunk. Each
 artefact is checked before the command ends: reloaded from disk, it must give the eager
-sampler's actions on the same noise.
+sampler's actions on the same observations and noise.
 """
 
 from __future__ import annotations
@@ -67,9 +68,11 @@ def load_actionflow(pretrained_dir: Path, device: str):
     return policy
 
 
-def check_against_eager(pretrained_dir: Path, device: str, steps: list[int]) -> dict[int, float]:
-    """Reload the checkpoint with its artefacts; for each K, the largest difference between the
-    exported and the eager actions on one random observation and noise.
+def check_against_eager(
+    pretrained_dir: Path, device: str, steps: list[int], batch_sizes: list[int]
+) -> dict[tuple[int, int], float]:
+    """Reload the checkpoint with its artefacts; for each K and batch size, the largest difference
+    between the exported and the eager actions on random observations and noise.
 
     Raises:
         RuntimeError: an artefact was refused, or differs from eager by more than
@@ -86,33 +89,32 @@ def check_against_eager(pretrained_dir: Path, device: str, steps: list[int]) -> 
     policy.attach_exported_samplers(pretrained_dir)
     cfg = policy.config
     gen = torch.Generator().manual_seed(0)
-    b, s, n = 2, cfg.n_obs_steps, policy.num_entities
-    poses = rp_to_pose7(random_rotation(b, s, n, generator=gen), 0.3 * torch.randn(b, s, n, 3, generator=gen))
-    batch = {POSES_KEY: poses, STATE_KEY: 0.02 * torch.rand(b, s, STATE_DIM, generator=gen)}
-    for key, feature in cfg.image_features.items():
-        batch[key] = torch.rand(b, s, *feature.shape, generator=gen)
-    batch = {k: v.to(device) for k, v in batch.items() if k in cfg.input_features}
-    noise = se3_flow.draw_local_noise(
-        b, cfg.horizon, cfg.noise_sigma, cfg.noise_rotation, cfg.noise_kappa, generator=gen
-    )
-    noise = se3_flow.LocalNoise(noise.r.to(device), noise.p.to(device), noise.g.to(device))
     errors = {}
-    for k in steps:
-        exported = (
-            policy.exported_samplers.get(torch.device(device), k, b) if policy.exported_samplers else None
+    for b in batch_sizes:
+        s, n = cfg.n_obs_steps, policy.num_entities
+        r, p = random_rotation(b, s, n, generator=gen), 0.3 * torch.randn(b, s, n, 3, generator=gen)
+        batch = {POSES_KEY: rp_to_pose7(r, p), STATE_KEY: 0.02 * torch.rand(b, s, STATE_DIM, generator=gen)}
+        for key, feature in cfg.image_features.items():
+            batch[key] = torch.rand(b, s, *feature.shape, generator=gen)
+        batch = {k: v.to(device) for k, v in batch.items() if k in cfg.input_features}
+        noise = se3_flow.draw_local_noise(
+            b, cfg.horizon, cfg.noise_sigma, cfg.noise_rotation, cfg.noise_kappa, generator=gen
         )
-        if exported is None:
-            raise RuntimeError(f"the artefact for K={k} on {device} was refused after export (see the log)")
-        a_exported = policy.predict_action_chunk(batch, noise=noise, num_inference_steps=k)
-        samplers, policy.exported_samplers = policy.exported_samplers, None
-        a_eager = policy.predict_action_chunk(batch, noise=noise, num_inference_steps=k)
-        policy.exported_samplers = samplers
-        errors[k] = float((a_exported - a_eager).abs().max())
-        if not errors[k] <= EXPORT_TOLERANCE:
-            raise RuntimeError(
-                f"the exported sampler for K={k} differs from eager by {errors[k]:.2e} "
-                f"(more than {EXPORT_TOLERANCE:.0e})"
-            )
+        noise = se3_flow.LocalNoise(noise.r.to(device), noise.p.to(device), noise.g.to(device))
+        for k in steps:
+            samplers = policy.exported_samplers
+            if samplers is None or samplers.get(torch.device(device), k, b) is None:
+                raise RuntimeError(f"the artefact for K={k} batch {b} on {device} was refused after export")
+            a_exported = policy.predict_action_chunk(batch, noise=noise, num_inference_steps=k)
+            policy.exported_samplers = None
+            a_eager = policy.predict_action_chunk(batch, noise=noise, num_inference_steps=k)
+            policy.exported_samplers = samplers
+            errors[k, b] = float((a_exported - a_eager).abs().max())
+            if not errors[k, b] <= EXPORT_TOLERANCE:
+                raise RuntimeError(
+                    f"the exported sampler for K={k} batch {b} differs from eager by {errors[k, b]:.2e} "
+                    f"(more than {EXPORT_TOLERANCE:.0e})"
+                )
     return errors
 
 
@@ -121,7 +123,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("checkpoint", help="pretrained_model directory (or a directory holding one)")
     ap.add_argument("--steps", type=int, nargs="+", default=None, help="K values (default: the config's)")
     ap.add_argument("--device", choices=["cpu", "cuda"], default="cpu")
-    ap.add_argument("--max-batch-size", type=int, default=256, help="largest batch the artefact accepts")
+    ap.add_argument(
+        "--batch-sizes",
+        type=int,
+        nargs="+",
+        default=[1],
+        help="batch sizes (1: a robot; lerobot-eval: n_envs)",
+    )
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(message)s")
     from lerobot_actionflow.policies.actionflow.exported import export_sampler
@@ -133,17 +141,20 @@ def main(argv: list[str] | None = None) -> int:
         print(f"actionflow-export: {e}", file=sys.stderr)
         return 2
     steps = args.steps or [policy.config.num_inference_steps]
-    bad = [k for k in steps if k < 1]
-    if bad:
-        print(f"actionflow-export: --steps must be >= 1, got {bad}", file=sys.stderr)
-        return 2
+    for name, values in (("--steps", steps), ("--batch-sizes", args.batch_sizes)):
+        if any(v < 1 for v in values):
+            print(f"actionflow-export: {name} must be >= 1, got {values}", file=sys.stderr)
+            return 2
     for k in steps:
-        t0 = time.perf_counter()
-        out = export_sampler(policy, pretrained_dir, k, args.device, args.max_batch_size)
-        size = (out / "sampler.pt2").stat().st_size / 2**20
-        print(f"K={k} on {args.device}: {out} ({size:.1f} MiB, {time.perf_counter() - t0:.0f} s)")
-    for k, err in check_against_eager(pretrained_dir, args.device, steps).items():
-        print(f"K={k}: exported == eager on the same noise (max |difference| {err:.1e})")
+        for b in args.batch_sizes:
+            t0 = time.perf_counter()
+            out = export_sampler(policy, pretrained_dir, k, args.device, b)
+            size = (out / "sampler.pt2").stat().st_size / 2**20
+            print(
+                f"K={k} batch {b} on {args.device}: {out} ({size:.1f} MiB, {time.perf_counter() - t0:.0f} s)"
+            )
+    for (k, b), err in check_against_eager(pretrained_dir, args.device, steps, args.batch_sizes).items():
+        print(f"K={k} batch {b}: exported == eager on the same noise (max |difference| {err:.1e})")
     return 0
 
 

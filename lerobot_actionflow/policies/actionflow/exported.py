@@ -8,11 +8,11 @@ no Python tracing, no compile wait, no guards, one C++ call per chunk.
 
 Layout, inside a checkpoint's ``pretrained_model/`` directory::
 
-    exported_sampler/<device>_k<K>/sampler.pt2     the AOTInductor package
-    exported_sampler/<device>_k<K>/manifest.json   what it was built from
+    exported_sampler/<device>_k<K>_b<B>/sampler.pt2     the AOTInductor package
+    exported_sampler/<device>_k<K>_b<B>/manifest.json   what it was built from
 
 An artefact is used only when its manifest matches the policy that loads it: the same format,
-policy type, torch version, device type and K, the SHA-256 of the weights (every tensor of the
+policy type and torch version, the SHA-256 of the weights (every tensor of the
 state dict, in name order, with its dtype and shape) and of the configuration (every field
 except those listed in :data:`SAMPLER_INDEPENDENT_FIELDS`), and the SHA-256 of ``sampler.pt2``
 itself. Anything else is refused with a log line naming the difference, and that K samples
@@ -21,7 +21,9 @@ eagerly. After loading, the parameters' version counters are watched: an in-plac
 artefacts whose weights no longer match are dropped with a log line. Writes through ``.data``
 bypass the version counters; call :meth:`ExportedSamplers.verify` after such an edit.
 
-Batch sizes are dynamic (``1 .. max_batch_size``); a larger batch samples eagerly.
+Each artefact serves one device type, one K and one batch size B (static shapes: inductor's
+autotuned GEMMs are specialised to them; 1 for a robot, the number of envs for ``lerobot-eval``).
+A chunk with no artefact for its device, K and batch size samples eagerly, logged once.
 """
 
 from __future__ import annotations
@@ -93,9 +95,9 @@ INDUCTOR_CONFIGS = {
 }
 
 
-def artefact_name(device: str, num_inference_steps: int) -> str:
-    """Directory name of the artefact for a device type and K, e.g. ``cpu_k4``."""
-    return f"{device}_k{num_inference_steps}"
+def artefact_name(device: str, num_inference_steps: int, batch_size: int) -> str:
+    """Directory name of the artefact for a device type, K and batch size, e.g. ``cpu_k4_b1``."""
+    return f"{device}_k{num_inference_steps}_b{batch_size}"
 
 
 def weights_fingerprint(module: nn.Module) -> str:
@@ -131,7 +133,7 @@ class Manifest:
         inputs: the tensors the package takes, in order (``observation.poses``, then
             ``observation.state`` and ``image_features`` when the policy reads them, then
             ``noise_r``, ``noise_p``, ``noise_g``).
-        max_batch_size: the largest batch the package accepts.
+        batch_size: the batch size the package takes.
     """
 
     format: int
@@ -144,7 +146,7 @@ class Manifest:
     config_sha256: str
     package_sha256: str
     inputs: tuple[str, ...]
-    max_batch_size: int
+    batch_size: int
 
     @classmethod
     def read(cls, path: Path) -> Manifest:
@@ -169,7 +171,7 @@ class Manifest:
         }
         out = []
         for field, mine in asdict(self).items():
-            if field in ("package_sha256", "max_batch_size"):
+            if field in ("package_sha256", "batch_size"):
                 continue
             theirs = getattr(expected, field)
             if mine != theirs:
@@ -244,7 +246,12 @@ def _example_inputs(policy, batch_size: int, device: torch.device) -> tuple[Tens
 
 
 def expected_manifest(
-    policy, device: str, num_inference_steps: int, package_sha256: str = "", weights_sha256: str | None = None
+    policy,
+    device: str,
+    num_inference_steps: int,
+    batch_size: int,
+    package_sha256: str = "",
+    weights_sha256: str | None = None,
 ) -> Manifest:
     """The manifest an artefact of this policy for ``device`` and K must carry (``weights_sha256``:
     the policy's :func:`weights_fingerprint`, when already computed)."""
@@ -260,41 +267,38 @@ def expected_manifest(
         config_sha256=config_fingerprint(policy.config),
         package_sha256=package_sha256,
         inputs=program.input_names(),
-        max_batch_size=0,
+        batch_size=batch_size,
     )
 
 
 def export_sampler(
-    policy, directory: str | Path, num_inference_steps: int, device: str = "cpu", max_batch_size: int = 256
+    policy, directory: str | Path, num_inference_steps: int, device: str = "cpu", batch_size: int = 1
 ) -> Path:
-    """Export and compile the sampler of ``policy`` for K steps on ``device``; write the artefact
-    under ``directory/exported_sampler/`` (replacing one of the same device and K) and return its
-    directory.
+    """Export and compile the sampler of ``policy`` for K steps on ``device`` at one batch size;
+    write the artefact under ``directory/exported_sampler/`` (replacing one of the same device, K
+    and batch size) and return its directory.
 
     The artefact is built in a temporary directory next to its destination and moved into place
     when complete, so an interrupted export leaves any earlier artefact as it was.
 
     Raises:
-        ValueError: K < 1, ``max_batch_size`` < 1, or a device type other than cpu / cuda.
+        ValueError: K < 1, ``batch_size`` < 1, or a device type other than cpu / cuda.
         RuntimeError: CUDA requested but not available.
     """
     if num_inference_steps < 1:
         raise ValueError(f"num_inference_steps (K) must be >= 1, got {num_inference_steps}")
-    if max_batch_size < 1:
-        raise ValueError(f"max_batch_size must be >= 1, got {max_batch_size}")
+    if batch_size < 1:
+        raise ValueError(f"batch_size must be >= 1, got {batch_size}")
     if device not in ("cpu", "cuda"):
         raise ValueError(f"device must be 'cpu' or 'cuda', got {device!r}")
     if device == "cuda" and not torch.cuda.is_available():
         raise RuntimeError("--device cuda: torch sees no CUDA device on this machine")
     policy = policy.to(device).eval()
     program = SamplerProgram(policy, num_inference_steps).to(device).eval()
-    # Batch 2 in the example: torch.export specialises a dimension of size 1.
-    example = _example_inputs(policy, 2, torch.device(device))
-    batch = torch.export.Dim("batch", min=1, max=max_batch_size)
-    dynamic_shapes = (tuple({0: batch} for _ in example),)  # forward(*inputs): one varargs entry
+    example = _example_inputs(policy, batch_size, torch.device(device))
     with torch.no_grad():
-        exported = torch.export.export(program, example, dynamic_shapes=dynamic_shapes, strict=False)
-    final = Path(directory) / EXPORT_DIR / artefact_name(device, num_inference_steps)
+        exported = torch.export.export(program, example, strict=False)
+    final = Path(directory) / EXPORT_DIR / artefact_name(device, num_inference_steps, batch_size)
     final.parent.mkdir(parents=True, exist_ok=True)
     staging = _staging_dir(final)
     try:
@@ -302,8 +306,9 @@ def export_sampler(
         torch._inductor.aoti_compile_and_package(
             exported, package_path=str(package), inductor_configs=INDUCTOR_CONFIGS[device]
         )
-        manifest = expected_manifest(policy, device, num_inference_steps, file_fingerprint(package))
-        Manifest(**{**asdict(manifest), "max_batch_size": max_batch_size}).write(staging / MANIFEST_FILE)
+        expected_manifest(policy, device, num_inference_steps, batch_size, file_fingerprint(package)).write(
+            staging / MANIFEST_FILE
+        )
         _replace_directory(staging, final)
     finally:
         shutil.rmtree(staging, ignore_errors=True)
@@ -366,30 +371,30 @@ class ExportedSamplers:
             runner = _load_artefact(policy, artefact, weights)
             if runner is not None:
                 m = runner.manifest
-                runners[(m.device, m.num_inference_steps)] = runner
+                runners[(m.device, m.num_inference_steps, m.batch_size)] = runner
         return cls(policy, runners)
 
-    def keys(self) -> list[tuple[str, int]]:
+    def keys(self) -> list[tuple[str, int, int]]:
+        """``(device type, K, batch size)`` of every artefact in use."""
         return sorted(self._runners)
 
     def get(self, device: torch.device, num_inference_steps: int, batch_size: int) -> Callable | None:
         """A callable ``(poses, state, image_features, noise) -> actions`` for this device, K and
-        batch size, or None (logged once per device and K) when there is none or it no longer
-        matches."""
-        key = (device.type, num_inference_steps)
+        batch size, or None (logged once per device, K and batch size) when there is none or it
+        no longer matches."""
+        key = (device.type, num_inference_steps, batch_size)
         if self._versions != self._parameter_versions():
             self.verify()
         runner = self._runners.get(key)
-        if runner is None or batch_size > runner.manifest.max_batch_size:
+        if runner is None:
             if key not in self._reported_misses and self._runners:
                 self._reported_misses.add(key)
-                if runner is None:
-                    have = ", ".join(f"{d} K={k}" for d, k in self.keys())
-                    reason = f"no exported sampler for K={num_inference_steps} on {device.type} ({have})"
-                else:
-                    limit = runner.manifest.max_batch_size
-                    reason = f"batch {batch_size} is above the exported sampler's {limit}"
-                logger.warning("actionflow: %s; sampling eagerly", reason)
+                have = ", ".join(f"{d} K={k} batch {b}" for d, k, b in self.keys())
+                logger.warning(
+                    "actionflow: no exported sampler for K=%d batch %d on %s (exported: %s); "
+                    "sampling eagerly",
+                    num_inference_steps, batch_size, device.type, have,
+                )  # fmt: skip
             return None
         return lambda poses, state, image_features, noise: self._call(
             runner, poses, state, image_features, noise
@@ -417,8 +422,8 @@ class ExportedSamplers:
             if runner.manifest.weights_sha256 != fingerprint:
                 logger.warning(
                     "actionflow: the policy's weights changed since the exported sampler %s was "
-                    "loaded; not using it (K=%d on %s samples eagerly)",
-                    runner.package, key[1], key[0],
+                    "loaded; not using it (K=%d batch %d on %s samples eagerly)",
+                    runner.package, key[1], key[2], key[0],
                 )  # fmt: skip
                 del self._runners[key]
         self._versions = self._parameter_versions()
@@ -427,8 +432,8 @@ class ExportedSamplers:
         """Copy the artefacts still in use to ``directory/exported_sampler`` (``save_pretrained``)."""
         if self._versions != self._parameter_versions():
             self.verify()
-        for (device, k), runner in self._runners.items():
-            target = Path(directory) / EXPORT_DIR / artefact_name(device, k)
+        for key, runner in self._runners.items():
+            target = Path(directory) / EXPORT_DIR / artefact_name(*key)
             if target.resolve() == runner.package.parent.resolve():
                 continue
             target.parent.mkdir(parents=True, exist_ok=True)
@@ -467,7 +472,11 @@ def _load_artefact(policy, artefact: Path, weights_sha256: str) -> _Runner | Non
         refuse("it was exported for CUDA and torch sees no CUDA device")
         return None
     expected = expected_manifest(
-        policy, manifest.device, manifest.num_inference_steps, weights_sha256=weights_sha256
+        policy,
+        manifest.device,
+        manifest.num_inference_steps,
+        manifest.batch_size,
+        weights_sha256=weights_sha256,
     )
     differences = manifest.differences(expected)
     if differences:

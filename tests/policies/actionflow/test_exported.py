@@ -40,7 +40,7 @@ class StandInRunner:
 
 @pytest.fixture
 def checkpoint(tmp_path, monkeypatch):
-    """A saved tiny policy with a stand-in artefact for K=2 on the CPU that matches it."""
+    """A saved tiny policy with a stand-in artefact for K=2, batch 2 on the CPU that matches it."""
     monkeypatch.setattr(ex, "_Runner", StandInRunner)
     StandInRunner.calls = []
     torch.manual_seed(0)
@@ -51,12 +51,13 @@ def checkpoint(tmp_path, monkeypatch):
     return path
 
 
-def write_stand_in(policy, path, k, **manifest_changes):
-    artefact = path / ex.EXPORT_DIR / ex.artefact_name("cpu", k)
+def write_stand_in(policy, path, k, batch_size=2, **manifest_changes):
+    artefact = path / ex.EXPORT_DIR / ex.artefact_name("cpu", k, batch_size)
     artefact.mkdir(parents=True, exist_ok=True)
     (artefact / ex.PACKAGE_FILE).write_bytes(b"stand-in package")
-    manifest = ex.expected_manifest(policy, "cpu", k, ex.file_fingerprint(artefact / ex.PACKAGE_FILE))
-    fields = {**asdict(manifest), "max_batch_size": 8, **manifest_changes}
+    package_sha256 = ex.file_fingerprint(artefact / ex.PACKAGE_FILE)
+    manifest = ex.expected_manifest(policy, "cpu", k, batch_size, package_sha256)
+    fields = {**asdict(manifest), **manifest_changes}
     ex.Manifest(**fields).write(artefact / ex.MANIFEST_FILE)
     return artefact
 
@@ -73,7 +74,7 @@ def used_artefact(actions) -> bool:
 
 def test_a_matching_artefact_is_used_from_the_first_chunk(checkpoint):
     policy = ActionflowPolicy.from_pretrained(checkpoint)
-    assert policy.exported_samplers.keys() == [("cpu", 2)]
+    assert policy.exported_samplers.keys() == [("cpu", 2, 2)]
     assert used_artefact(chunk(policy))
     # poses, state, noise r / p / g: the inputs the manifest names, batch first.
     assert StandInRunner.calls == [[(2, 2, 4, 7), (2, 2, 11), (2, 8, 3, 3), (2, 8, 3), (2, 8)]]
@@ -84,14 +85,17 @@ def test_other_k_samples_eagerly_and_says_so(checkpoint, caplog):
     with caplog.at_level(logging.INFO):
         actions = chunk(policy, k=3)
     assert not used_artefact(actions)
-    assert "no exported sampler for K=3 on cpu (cpu K=2); sampling eagerly" in caplog.text
+    assert "no exported sampler for K=3 batch 2 on cpu (exported: cpu K=2 batch 2); sampling eagerly" in (
+        caplog.text
+    )
 
 
-def test_a_batch_above_the_exported_limit_samples_eagerly(checkpoint, caplog):
+def test_other_batch_size_samples_eagerly_and_says_so(checkpoint, caplog):
     policy = ActionflowPolicy.from_pretrained(checkpoint)
     with caplog.at_level(logging.INFO):
-        assert not used_artefact(chunk(policy, batch_size=9))
-    assert "batch 9 is above the exported sampler's 8" in caplog.text
+        assert not used_artefact(chunk(policy, batch_size=1))
+    assert "no exported sampler for K=2 batch 1 on cpu" in caplog.text
+    assert used_artefact(chunk(policy, batch_size=2))
 
 
 @pytest.mark.parametrize(
@@ -102,11 +106,11 @@ def test_a_batch_above_the_exported_limit_samples_eagerly(checkpoint, caplog):
         (lambda policy, path: write_stand_in(policy, path, 2, torch="1.0"), "torch version '1.0'"),
         (lambda policy, path: write_stand_in(policy, path, 2, format=0), "format 0"),
         (
-            lambda policy, path: (path / ex.EXPORT_DIR / "cpu_k2" / ex.PACKAGE_FILE).write_bytes(b"other"),
+            lambda policy, path: (path / ex.EXPORT_DIR / "cpu_k2_b2" / ex.PACKAGE_FILE).write_bytes(b"other"),
             "is not the file its manifest describes",
         ),
         (
-            lambda policy, path: (path / ex.EXPORT_DIR / "cpu_k2" / ex.MANIFEST_FILE).write_text("{"),
+            lambda policy, path: (path / ex.EXPORT_DIR / "cpu_k2_b2" / ex.MANIFEST_FILE).write_text("{"),
             "manifest",
         ),
     ],
@@ -117,7 +121,7 @@ def test_a_mismatched_artefact_is_refused_with_a_log_line(checkpoint, caplog, ch
     change(ActionflowPolicy(small_config()), checkpoint)
     with caplog.at_level(logging.WARNING):
         policy = ActionflowPolicy.from_pretrained(checkpoint)
-    assert f"not using the exported sampler {checkpoint / ex.EXPORT_DIR / 'cpu_k2'}" in caplog.text
+    assert f"not using the exported sampler {checkpoint / ex.EXPORT_DIR / 'cpu_k2_b2'}" in caplog.text
     assert reason in caplog.text
     assert policy.exported_samplers.keys() == []
     assert not used_artefact(chunk(policy))
@@ -183,13 +187,14 @@ def test_exported_sampler_round_trip_equals_eager_and_is_equivariant(tmp_path, c
 
     torch.manual_seed(0)
     ActionflowPolicy(small_config()).save_pretrained(tmp_path / "pretrained_model")
-    assert main([str(tmp_path), "--steps", "2"]) == 0  # checks exported == eager itself, to 1e-5
+    # Checks exported == eager itself, to 1e-5, at each batch size.
+    assert main([str(tmp_path), "--steps", "2", "--batch-sizes", "1", "3"]) == 0
 
     policy = ActionflowPolicy.from_pretrained(tmp_path / "pretrained_model")
     policy.save_pretrained(tmp_path / "copy")
     policy = ActionflowPolicy.from_pretrained(tmp_path / "copy")
-    runner = policy.exported_samplers._runners[("cpu", 2)]
-    assert isinstance(runner, ex._Runner)
+    assert policy.exported_samplers.keys() == [("cpu", 2, 1), ("cpu", 2, 3)]
+    assert isinstance(policy.exported_samplers._runners[("cpu", 2, 3)], ex._Runner)
     gen = torch.Generator().manual_seed(3)
     batch = random_batch(policy.config, 3, gen)
     noise = se3_flow.draw_local_noise(3, policy.config.horizon, 0.1, generator=gen)
