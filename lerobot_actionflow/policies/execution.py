@@ -27,6 +27,7 @@ turned into the target, weights and frozen mask of :mod:`lerobot_actionflow.flow
 from __future__ import annotations
 
 import math
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from time import perf_counter
@@ -35,6 +36,7 @@ from typing import Any
 import torch
 from lerobot.policies.rtc.configuration_rtc import RTCConfig
 from lerobot.policies.rtc.modeling_rtc import RTCProcessor
+from lerobot.policies.utils import populate_queues
 from torch import Tensor
 
 from lerobot_actionflow.flow.guidance import geodesic_blend
@@ -278,3 +280,18 @@ def rtc_guidance(
         weights[i, offset:] = w
         frozen[i, offset : offset + d] = True
     return RTCGuidance(target, weights, frozen)
+
+
+def history_with_step(
+    queues: dict[str, deque], step: dict[str, Tensor], action_key: str
+) -> dict[str, Tensor]:
+    """The observation history ``(B, n_obs_steps, ...)`` after one step ``(B, ...)``, for LeRobot's
+    RTC engine, which passes one observation per chunk. ``queues`` (the policy's observation and
+    action queues, updated in place) take the step unless it equals the newest one: the engine
+    may pass the same observation again, and it must not fill the history twice."""
+    newest = {k: q[-1] for k, q in queues.items() if k != action_key and q}
+    if len(newest) != len(step) or any(
+        newest[k].shape != v.shape or not torch.equal(newest[k], v) for k, v in step.items()
+    ):
+        queues.update(populate_queues(queues, step))
+    return {k: torch.stack(list(q), dim=1) for k, q in queues.items() if k != action_key}

@@ -33,6 +33,7 @@ from lerobot_actionflow.policies.execution import (
     ExecutionOptions,
     RTCGuidance,
     TargetSmoother,
+    history_with_step,
     rtc_config_of,
     rtc_guidance,
     timed,
@@ -212,13 +213,7 @@ class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
         one_step = self.config.n_obs_steps > 1 and isinstance(poses, Tensor) and poses.ndim == per_step + 1
         if not one_step:
             return self.check_observation(batch, with_time=True)
-        step = self.check_observation(batch, with_time=False)
-        newest = {k: q[-1] for k, q in self._queues.items() if k != ACTION_KEY and q}
-        if len(newest) != len(step) or any(
-            newest[k].shape != v.shape or not torch.equal(newest[k], v) for k, v in step.items()
-        ):
-            self._queues = populate_queues(self._queues, step)
-        return {k: torch.stack(list(q), dim=1) for k, q in self._queues.items() if k != ACTION_KEY}
+        return history_with_step(self._queues, self.check_observation(batch, with_time=False), ACTION_KEY)
 
     def _predict_rtc(
         self,

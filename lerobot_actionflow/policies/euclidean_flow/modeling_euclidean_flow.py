@@ -34,6 +34,7 @@ from lerobot_actionflow.policies.execution import (
     ExecutionOptions,
     RTCGuidance,
     TargetSmoother,
+    history_with_step,
     rtc_config_of,
     rtc_guidance,
     timed,
@@ -271,13 +272,7 @@ class EuclideanFlowPolicy(StrictLoading, PreTrainedPolicy):
         x = batch.get(key)
         if self.config.n_obs_steps == 1 or not isinstance(x, Tensor) or x.ndim != len(ft.shape) + 1:
             return self._prepare(batch, with_time=True)
-        step = self._prepare(batch, with_time=False)
-        newest = {k: q[-1] for k, q in self._queues.items() if k != ACTION and q}
-        if len(newest) != len(step) or any(
-            newest[k].shape != v.shape or not torch.equal(newest[k], v) for k, v in step.items()
-        ):
-            self._queues = populate_queues(self._queues, step)
-        return {k: torch.stack(list(q), dim=1) for k, q in self._queues.items() if k != ACTION}
+        return history_with_step(self._queues, self._prepare(batch, with_time=False), ACTION)
 
     def _sample_rtc(
         self,
