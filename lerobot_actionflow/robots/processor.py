@@ -90,6 +90,15 @@ def num_tokens_of(config: PreTrainedConfig) -> int:
     raise ValueError(f"policy has neither '{POSES_KEY}' nor '{ENV_STATE_KEY}' in its inputs: {list(feats)}")
 
 
+def robot_observation_steps(config: PreTrainedConfig) -> list[RobotObservationToPolicyStep]:
+    """The splitting step for a policy's preprocessor, or none when the policy reads neither
+    pose tokens nor object poses (a robot's flat observation would not fit it anyway)."""
+    feats = config.input_features
+    if POSES_KEY not in feats and ENV_STATE_KEY not in feats:
+        return []
+    return [RobotObservationToPolicyStep(num_tokens=num_tokens_of(config))]
+
+
 def add_robot_observation_step(pretrained_path: str | Path) -> bool:
     """Insert :class:`RobotObservationToPolicyStep` into the checkpoint's preprocessor, after
     its renaming step and before everything else; returns False if it was there already."""

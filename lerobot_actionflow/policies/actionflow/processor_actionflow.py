@@ -18,7 +18,7 @@ from lerobot.processor.factory import make_default_policy_processor_steps, make_
 from lerobot.processor.normalize_processor import NormalizerProcessorStep, UnnormalizerProcessorStep
 
 from lerobot_actionflow.policies.actionflow.configuration_actionflow import ActionflowConfig
-from lerobot_actionflow.robots.processor import RobotObservationToPolicyStep, num_tokens_of
+from lerobot_actionflow.robots.processor import robot_observation_steps
 from lerobot_actionflow.schema import ACTION_KEY, POSES_KEY
 
 #: Features never normalised: they are poses.
@@ -46,11 +46,10 @@ def make_actionflow_pre_post_processors(
         stats=dataset_stats,
     )
     # A robot's flat observation (lerobot-rollout) back into the dataset's features.
-    robot_observation = RobotObservationToPolicyStep(num_tokens=num_tokens_of(config))
     return make_policy_processor_pipelines(
         input_steps=[
             steps.rename_observations,
-            robot_observation,
+            *robot_observation_steps(config),
             steps.add_batch_dim,
             steps.to_device,
             normalize,

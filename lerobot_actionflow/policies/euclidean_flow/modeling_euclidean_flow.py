@@ -17,6 +17,7 @@ Observations ``o``: per step, ``[state, image features, environment state]`` con
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Callable
 
 import torch
 from lerobot.policies.diffusion.modeling_diffusion import DiffusionRgbEncoder
@@ -192,25 +193,8 @@ class EuclideanFlowPolicy(StrictLoading, PreTrainedPolicy):
         """Full normalised chunk ``(B, H, A)`` from prepared observations ``(B, S, ...)``:
         ``K`` Euler steps from ``a_0 = noise`` (``N(0, I)`` if not given) on the time grid."""
         cond = self.obs_encoder(obs)  # (B, S, D)
-        b = cond.shape[0]
-        shape = (b, self.config.horizon, self.config.action_feature.shape[0])
-        if noise is None:
-            noise = torch.randn(shape, dtype=cond.dtype, device=cond.device)
-        elif tuple(noise.shape) != shape:
-            raise ValueError(f"noise has shape {tuple(noise.shape)}, expected {shape}")
-        k = self.config.num_inference_steps if num_inference_steps is None else num_inference_steps
-        times = make_time_grid(
-            check_num_inference_steps(k),
-            time_spacing or self.config.time_spacing,
-            rate=self.config.time_spacing_rate,
-            dtype=cond.dtype,
-            device=cond.device,
-        )
-
-        def velocity(a: Tensor, k: int) -> Tensor:
-            return self.velocity_net(a, times[k].expand(a.shape[0]), cond)
-
-        chunk = euler_sample(velocity, noise.to(cond.dtype), times)
+        noise, times, velocity = self._flow(cond, noise, num_inference_steps, time_spacing)
+        chunk = euler_sample(velocity, noise, times)
         return chunk.clamp(-1.0, 1.0) if self.config.clip_sample else chunk
 
     def supports_rtc(self) -> bool:
@@ -274,26 +258,16 @@ class EuclideanFlowPolicy(StrictLoading, PreTrainedPolicy):
             return self._prepare(batch, with_time=True)
         return history_with_step(self._queues, self._prepare(batch, with_time=False), ACTION)
 
-    def _sample_rtc(
-        self,
-        cond: Tensor,
-        guide: RTCGuidance,
-        noise: Tensor | None,
-        num_inference_steps: int | None,
-        time_spacing: str | None,
-    ) -> Tensor:
-        """:meth:`sample_chunk` with real-time-chunking guidance, from encoded observations."""
-        b = cond.shape[0]
-        shape = (b, self.config.horizon, self.config.action_feature.shape[0])
+    def _flow(
+        self, cond: Tensor, noise: Tensor | None, num_inference_steps: int | None, time_spacing: str | None
+    ) -> tuple[Tensor, Tensor, Callable[[Tensor, int], Tensor]]:
+        """The initial noise ``(B, H, A)`` (drawn if None, else checked), the K + 1 flow times and
+        the step-indexed velocity field conditioned on ``cond``."""
+        shape = (cond.shape[0], self.config.horizon, self.config.action_feature.shape[0])
         if noise is None:
             noise = torch.randn(shape, dtype=cond.dtype, device=cond.device)
         elif tuple(noise.shape) != shape:
             raise ValueError(f"noise has shape {tuple(noise.shape)}, expected {shape}")
-        if guide.target.shape[-1] != shape[-1]:
-            raise ValueError(
-                f"prev_chunk_left_over must hold actions (..., {shape[-1]}), got last dimension "
-                f"{guide.target.shape[-1]}"
-            )
         k = self.config.num_inference_steps if num_inference_steps is None else num_inference_steps
         times = make_time_grid(
             check_num_inference_steps(k),
@@ -306,10 +280,28 @@ class EuclideanFlowPolicy(StrictLoading, PreTrainedPolicy):
         def velocity(a: Tensor, k: int) -> Tensor:
             return self.velocity_net(a, times[k].expand(a.shape[0]), cond)
 
+        return noise.to(cond.dtype), times, velocity
+
+    def _sample_rtc(
+        self,
+        cond: Tensor,
+        guide: RTCGuidance,
+        noise: Tensor | None,
+        num_inference_steps: int | None,
+        time_spacing: str | None,
+    ) -> Tensor:
+        """:meth:`sample_chunk` with real-time-chunking guidance, from encoded observations."""
+        action_dim = self.config.action_feature.shape[0]
+        if guide.target.shape[-1] != action_dim:
+            raise ValueError(
+                f"prev_chunk_left_over must hold actions (..., {action_dim}), got last dimension "
+                f"{guide.target.shape[-1]}"
+            )
+        noise, times, velocity = self._flow(cond, noise, num_inference_steps, time_spacing)
         target = guide.target.to(cond.device)
         frozen = guide.frozen.to(cond.device)
         chunk = inpaint_sample_euclidean(
-            velocity, noise.to(cond.dtype), times, target, guide.weights.to(cond.device), frozen
+            velocity, noise, times, target, guide.weights.to(cond.device), frozen
         )
         if self.config.clip_sample:
             chunk = chunk.clamp(-1.0, 1.0)

@@ -20,7 +20,7 @@ from lerobot.processor.factory import make_default_policy_processor_steps, make_
 from lerobot.processor.normalize_processor import NormalizerProcessorStep
 
 from lerobot_actionflow.policies.euclidean_flow.configuration_euclidean_flow import EuclideanFlowConfig
-from lerobot_actionflow.robots.processor import RobotObservationToPolicyStep, num_tokens_of
+from lerobot_actionflow.robots.processor import robot_observation_steps
 
 
 def make_euclidean_flow_pre_post_processors(
@@ -38,8 +38,13 @@ def make_euclidean_flow_pre_post_processors(
         stats=dataset_stats,
     )
     # A robot's flat observation (lerobot-rollout) back into the dataset's features.
-    robot_observation = RobotObservationToPolicyStep(num_tokens=num_tokens_of(config))
     return make_policy_processor_pipelines(
-        input_steps=[s.rename_observations, robot_observation, s.add_batch_dim, s.to_device, normalize],
+        input_steps=[
+            s.rename_observations,
+            *robot_observation_steps(config),
+            s.add_batch_dim,
+            s.to_device,
+            normalize,
+        ],
         output_steps=[s.unnormalize, s.to_cpu],
     )
