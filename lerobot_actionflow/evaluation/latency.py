@@ -55,7 +55,8 @@ FLOW_POLICIES = ("actionflow", "euclidean_flow")
 def hold_steps(latency_s: float, control_period_s: float) -> int:
     """Control steps that pass during an inference of ``latency_s`` seconds: ``ceil(L / dt)``
     (:func:`~lerobot_actionflow.policies.execution.num_skipped`; 0 for ``L = 0``)."""
-    if not (isinstance(control_period_s, (int, float)) and math.isfinite(control_period_s) and control_period_s > 0):
+    period = control_period_s
+    if not (isinstance(period, (int, float)) and math.isfinite(period) and period > 0):
         raise ValueError(f"the control period must be seconds > 0, got {control_period_s!r}")
     if not (isinstance(latency_s, (int, float)) and math.isfinite(latency_s) and latency_s >= 0):
         raise ValueError(f"the latency must be seconds >= 0, got {latency_s!r}")
