@@ -10,7 +10,8 @@ with ``scheme``) is listed as skipped. Latencies are injected (``--latencies_ms`
 results reproduce on any machine; ``--measured=true`` instead uses the wall-clock time of each
 chunk's inference (one cell per mode, latency ``measured``).
 
-Every cell uses the same env seeds (``--seed`` onwards): paired comparisons.
+Every cell uses the same env seeds (``--seed`` onwards) and starts the policy's noise from
+torch seed ``--seed``: paired comparisons.
 
 Usage::
 
@@ -32,6 +33,7 @@ import logging
 import math
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -81,7 +83,9 @@ def _cells(cfg: LatencySweepConfig, steps: list[int | None]):
                 yield num_steps, mode, latency_s
 
 
-def _evaluate_checkpoint(cfg: LatencySweepConfig, checkpoint: str) -> list[dict]:
+def _evaluate_checkpoint(cfg: LatencySweepConfig, checkpoint: str, on_row: Callable[[dict], None]) -> None:
+    """Evaluate every cell of ``checkpoint``; ``on_row(row)`` as each is done (or skipped)."""
+    import torch
     from lerobot.configs.policies import PreTrainedConfig
     from lerobot.envs.factory import make_env_pre_post_processors
     from lerobot.policies.factory import make_policy, make_pre_post_processors
@@ -106,7 +110,6 @@ def _evaluate_checkpoint(cfg: LatencySweepConfig, checkpoint: str) -> list[dict]
     trained_m = policy.config.n_action_steps
     scheme = Scheme(cfg.scheme_action_steps, cfg.scheme_smoothing)
     vec_env = make_latency_envs(cfg.env, cfg.eval.batch_size, cfg.eval.use_async_envs)
-    rows = []
     try:
         for num_steps, mode, latency_s in _cells(cfg, cfg.inference_steps or [None]):
             row = {
@@ -121,20 +124,18 @@ def _evaluate_checkpoint(cfg: LatencySweepConfig, checkpoint: str) -> list[dict]
                     set_inference_steps(policy, num_steps)
                 configure_execution(policy, mode, latency_s, period, scheme, trained_m)
             except ValueError as e:
-                rows.append({**row, "skipped": str(e)})
-                logging.info("latency sweep: skipped %s: %s", row, e)
+                on_row({**row, "skipped": str(e)})
                 continue
+            torch.manual_seed(cfg.seed)  # the same policy noise draws in every cell
             start = time.perf_counter()
             result = evaluate_with_latency(
                 policy, vec_env, env_pre, env_post, preprocessor, postprocessor,
                 control_period_s=period, latency_s=latency_s, rtc=mode == "rtc",
                 n_episodes=cfg.eval.n_episodes, start_seed=cfg.seed,
             )  # fmt: skip
-            rows.append({**row, **result, "eval_s": time.perf_counter() - start})
-            logging.info("latency sweep %s", {k: v for k, v in rows[-1].items() if k != "episodes"})
+            on_row({**row, **result, "eval_s": time.perf_counter() - start})
     finally:
         vec_env.close()
-    return rows
 
 
 def checkpoint_label(checkpoint: str) -> str:
@@ -224,25 +225,42 @@ def plot_success(rows: list[dict], path: Path) -> Path | None:
     return path
 
 
+def _write(cfg: LatencySweepConfig, rows: list[dict], final: bool) -> None:
+    out = Path(cfg.output_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    settings = {
+        "env_type": cfg.env.type,
+        "task": getattr(cfg.env, "task", None),
+        "episode_length": getattr(cfg.env, "episode_length", None),
+        "control_period_s": 1.0 / cfg.env.fps,
+        "scheme": asdict(Scheme(cfg.scheme_action_steps, cfg.scheme_smoothing)),
+        "seed": cfg.seed,
+        "n_episodes": cfg.eval.n_episodes,
+        "complete": final,
+    }
+    (out / "latency_results.json").write_text(json.dumps({"settings": settings, "cells": rows}, indent=1))
+    (out / "latency_results.md").write_text(format_tables(rows) + "\n")
+    if final:
+        plot_success(rows, out / "latency_success.png")
+
+
 def run_latency_sweep(cfg: LatencySweepConfig) -> list[dict]:
-    """Evaluate every cell; writes the JSON, the markdown and the plot if ``output_dir``."""
+    """Evaluate every cell; if ``output_dir``, writes the JSON and the markdown after each cell
+    (``settings.complete`` False until the end), then the plot."""
     if not cfg.checkpoints:
         raise ValueError("no checkpoints given: pass --checkpoints='[path/to/pretrained_model, ...]'")
-    rows = [row for ckpt in cfg.checkpoints for row in _evaluate_checkpoint(cfg, ckpt)]
+    rows: list[dict] = []
+
+    def on_row(row: dict) -> None:
+        rows.append(row)
+        logging.info("latency sweep: %s", {k: v for k, v in row.items() if k != "episodes"})
+        if cfg.output_dir is not None:
+            _write(cfg, rows, final=False)
+
+    for ckpt in cfg.checkpoints:
+        _evaluate_checkpoint(cfg, ckpt, on_row)
     if cfg.output_dir is not None:
-        out = Path(cfg.output_dir)
-        out.mkdir(parents=True, exist_ok=True)
-        settings = {
-            "env_type": cfg.env.type,
-            "task": getattr(cfg.env, "task", None),
-            "control_period_s": 1.0 / cfg.env.fps,
-            "scheme": asdict(Scheme(cfg.scheme_action_steps, cfg.scheme_smoothing)),
-            "seed": cfg.seed,
-            "n_episodes": cfg.eval.n_episodes,
-        }
-        (out / "latency_results.json").write_text(json.dumps({"settings": settings, "cells": rows}, indent=1))
-        (out / "latency_results.md").write_text(format_tables(rows) + "\n")
-        plot_success(rows, out / "latency_success.png")
+        _write(cfg, rows, final=True)
     return rows
 
 
@@ -250,7 +268,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
     """CLI entry point (``python benchmarks/latency_sweep.py --help``)."""
     from lerobot.utils.import_utils import register_third_party_plugins
 
-    logging.basicConfig(level=logging.INFO)
+    logging.basicConfig(level=logging.INFO, force=True)
     register_third_party_plugins()  # our policy and env types, like lerobot-eval
     cfg = draccus.parse(LatencySweepConfig, args=sys.argv[1:] if argv is None else argv)
     rows = run_latency_sweep(cfg)
