@@ -78,3 +78,26 @@ def test_latency_sweep_writes_every_cell(checkpoint, tmp_path):
     assert "100 ms" in table and "scheme" in table and "rtc" in table
     pytest.importorskip("matplotlib")
     assert (tmp_path / "latency_success.png").stat().st_size > 0
+
+
+def test_the_held_target_at_an_episodes_start_keeps_the_arm_still():
+    import gymnasium as gym
+
+    from lerobot_actionflow.envs.latency_hold import idle_target
+    from lerobot_actionflow.rotations import geodesic_distance
+
+    env = gym.make("lerobot_actionflow/Lift-v0", max_episode_steps=STEPS)
+    try:
+        obs, _ = env.reset(seed=0)
+        p0, r0 = env.unwrapped.eef_pose()
+        for _ in range(STEPS - 1):
+            env.step(idle_target(obs))
+        p1, r1 = env.unwrapped.eef_pose()
+        assert np.linalg.norm(p1 - p0) < 1e-5 and geodesic_distance(r0, r1) < 1e-5
+        # control: a target 5 cm away does move it
+        moved = idle_target(obs)
+        moved[2] += 0.05
+        env.step(moved)
+        assert np.linalg.norm(env.unwrapped.eef_pose()[0] - p1) > 1e-3
+    finally:
+        env.close()
