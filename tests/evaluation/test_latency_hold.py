@@ -206,3 +206,25 @@ def test_scheme_needs_a_flow_policy():
     with pytest.raises(ValueError, match="real-time chunking"):
         configure_execution(policy, "rtc", 0.1, 0.05, Scheme(), 8)
     configure_execution(policy, "plain", 0.1, 0.05, Scheme(), 8)  # holds only: any policy
+
+
+class SlowPolicy(ScriptedPolicy):
+    """Takes ``seconds`` of wall clock for each chunk."""
+
+    def __init__(self, seconds: float, **kw):
+        super().__init__(**kw)
+        self.seconds = seconds
+
+    def predict_action_chunk(self, batch, **kw):
+        import time
+
+        time.sleep(self.seconds)
+        return super().predict_action_chunk(batch, **kw)
+
+
+def test_a_measured_latency_holds_the_steps_the_inference_took():
+    # 0.3 s at 0.25 s per step: 2 steps (sleep overshoots, never undershoots; a margin of 0.2 s
+    # before it would be 3)
+    xs, _, hook = run(SlowPolicy(0.3, horizon=4, n_action_steps=2), None, 0.25, 6)
+    assert set(hook.holds) == {2}
+    assert xs == [I, I, 0, 1, 1, 1]

@@ -60,3 +60,22 @@ def test_short_trajectories_measure_nothing():
 def test_wrong_shape_is_refused():
     with pytest.raises(ValueError, match=f"\\(T, {ACTION_DIM}\\)"):
         smoothness_figures(np.zeros((5, 7)))
+
+
+def test_sweep_tables_list_every_cell_and_the_skipped_ones():
+    from lerobot_actionflow.evaluation.latency_sweep import checkpoint_label, format_tables
+
+    ckpt = "out/af/train/checkpoints/last/pretrained_model"
+    assert checkpoint_label(ckpt) == "af/train/last"
+    base = {"checkpoint": ckpt, "policy": "actionflow", "inference_steps": 4}
+    figures = {"n_episodes": 10, "held_steps_per_chunk": 4.0, "mean_max_position_jump_m": 0.05,
+               "mean_max_rotation_jump_rad": np.pi / 6, "mean_jerk_m2": 2e-6}  # fmt: skip
+    rows = [
+        {**base, "mode": "plain", "latency_ms": 0.0, "pc_success": 80.0, **figures},
+        {**base, "mode": "plain", "latency_ms": 200.0, "pc_success": 40.0, **figures},
+        {**base, "policy": "diffusion", "mode": "rtc", "latency_ms": 0.0, "skipped": "no RTC"},
+    ]
+    table = format_tables(rows)
+    assert "| af/train/last (actionflow K/IS=4) plain | 80 (10) | 40 (10) |" in table
+    assert "| 200 ms | 4.0 | 50.0 | 30.0 | 2.00 |" in table
+    assert "Skipped: af/train/last (diffusion K/IS=4) rtc: no RTC" in table
