@@ -1,2 +1,3 @@
 """Evaluation tools on top of LeRobot's eval machinery: ``sweep``, success per number of
-inference steps for trained checkpoints."""
+inference steps for trained checkpoints; ``latency`` and ``latency_sweep``, success and
+smoothness (``smoothness``) when the env keeps stepping while the policy infers."""

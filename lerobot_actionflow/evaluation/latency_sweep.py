@@ -1,0 +1,280 @@
+"""Success and smoothness against inference latency, for trained checkpoints (issue: real-time
+execution, paper App. G).
+
+For each checkpoint, number of inference steps (optional), mode and latency, the policy is
+rolled out with LeRobot's ``eval_policy`` in envs that keep stepping while it infers
+(:mod:`lerobot_actionflow.evaluation.latency`): ``plain`` (as trained), ``scheme`` (the paper's
+skip + ``m`` actions per chunk + smoothing; flow policies) and ``rtc`` (simulated real-time
+chunking; policies with ``supports_rtc``). A cell that a policy cannot run (e.g. ``diffusion``
+with ``scheme``) is listed as skipped. Latencies are injected (``--latencies_ms``), so the
+results reproduce on any machine; ``--measured=true`` instead uses the wall-clock time of each
+chunk's inference (one cell per mode, latency ``measured``).
+
+Every cell uses the same env seeds (``--seed`` onwards) and starts the policy's noise from
+torch seed ``--seed``: paired comparisons.
+
+Usage::
+
+    python benchmarks/latency_sweep.py \\
+        --checkpoints='[outputs/train/af/checkpoints/last/pretrained_model]' \\
+        --env.type=actionflow --env.task=Lift \\
+        --latencies_ms='[0,50,100,200,400,800]' --modes='[plain,scheme,rtc]' \\
+        --eval.n_episodes=50 --eval.batch_size=10 --output_dir=outputs/latency
+
+Writes ``<output_dir>/latency_results.json`` (every cell, with its per-episode records),
+``latency_results.md`` (success and smoothness tables) and, if matplotlib is installed,
+``latency_success.png`` (success against latency, one line per checkpoint and mode).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import draccus
+from lerobot.configs.default import EvalConfig
+from lerobot.envs.configs import EnvConfig
+
+from lerobot_actionflow.evaluation.latency import MODES, Scheme
+
+MEASURED = "measured"
+
+
+@dataclass
+class LatencySweepConfig:
+    """Command-line configuration (parsed with draccus, like LeRobot's CLIs)."""
+
+    env: EnvConfig
+    # Checkpoint directories (…/pretrained_model) of actionflow, euclidean_flow or diffusion.
+    checkpoints: list[str] = field(default_factory=list)
+    latencies_ms: list[float] = field(default_factory=lambda: [0, 50, 100, 200, 400, 800])
+    modes: list[str] = field(default_factory=lambda: list(MODES))
+    # Inference steps (K for the flow policies, IS for diffusion); empty: each checkpoint's own.
+    inference_steps: list[int] = field(default_factory=list)
+    # The paper's scheme: actions executed per chunk (m) and smoothing weight alpha.
+    scheme_action_steps: int = 2
+    scheme_smoothing: float = 0.5
+    # Use the measured wall-clock time of each inference instead of `latencies_ms`.
+    measured: bool = False
+    eval: EvalConfig = field(default_factory=lambda: EvalConfig(n_episodes=50, batch_size=10))
+    seed: int = 1000
+    device: str | None = None
+    output_dir: Path | None = None
+
+    def __post_init__(self):
+        bad = [m for m in self.modes if m not in MODES]
+        if bad:
+            raise ValueError(f"unknown modes {bad}; choose among {MODES}")
+        if any(not math.isfinite(x) or x < 0 for x in self.latencies_ms):
+            raise ValueError(f"latencies_ms must be finite and >= 0, got {self.latencies_ms}")
+
+
+def _cells(cfg: LatencySweepConfig, steps: list[int | None]):
+    latencies = [None] if cfg.measured else [x / 1000.0 for x in cfg.latencies_ms]
+    for num_steps in steps:
+        for mode in cfg.modes:
+            for latency_s in latencies:
+                yield num_steps, mode, latency_s
+
+
+def _evaluate_checkpoint(cfg: LatencySweepConfig, checkpoint: str, on_row: Callable[[dict], None]) -> None:
+    """Evaluate every cell of ``checkpoint``; ``on_row(row)`` as each is done (or skipped)."""
+    import torch
+    from lerobot.configs.policies import PreTrainedConfig
+    from lerobot.envs.factory import make_env_pre_post_processors
+    from lerobot.policies.factory import make_policy, make_pre_post_processors
+
+    from lerobot_actionflow.envs.latency_hold import make_latency_envs
+    from lerobot_actionflow.evaluation.latency import configure_execution, evaluate_with_latency
+    from lerobot_actionflow.evaluation.sweep import set_inference_steps
+
+    policy_cfg = PreTrainedConfig.from_pretrained(checkpoint)
+    policy_cfg.pretrained_path = Path(checkpoint)
+    if cfg.device is not None:
+        policy_cfg.device = cfg.device
+    policy = make_policy(cfg=policy_cfg, env_cfg=cfg.env)
+    policy.eval()
+    preprocessor, postprocessor = make_pre_post_processors(
+        policy_cfg=policy_cfg,
+        pretrained_path=checkpoint,
+        preprocessor_overrides={"device_processor": {"device": str(policy.config.device)}},
+    )
+    env_pre, env_post = make_env_pre_post_processors(env_cfg=cfg.env, policy_cfg=policy_cfg)
+    period = 1.0 / cfg.env.fps
+    trained_m = policy.config.n_action_steps
+    scheme = Scheme(cfg.scheme_action_steps, cfg.scheme_smoothing)
+    vec_env = make_latency_envs(cfg.env, cfg.eval.batch_size, cfg.eval.use_async_envs)
+    try:
+        for num_steps, mode, latency_s in _cells(cfg, cfg.inference_steps or [None]):
+            row = {
+                "checkpoint": checkpoint,
+                "policy": policy_cfg.type,
+                "inference_steps": num_steps,
+                "mode": mode,
+                "latency_ms": MEASURED if latency_s is None else 1000.0 * latency_s,
+            }
+            try:
+                if num_steps is not None:
+                    set_inference_steps(policy, num_steps)
+                configure_execution(policy, mode, latency_s, period, scheme, trained_m)
+            except ValueError as e:
+                on_row({**row, "skipped": str(e)})
+                continue
+            torch.manual_seed(cfg.seed)  # the same policy noise draws in every cell
+            start = time.perf_counter()
+            result = evaluate_with_latency(
+                policy, vec_env, env_pre, env_post, preprocessor, postprocessor,
+                control_period_s=period, latency_s=latency_s, rtc=mode == "rtc",
+                n_episodes=cfg.eval.n_episodes, start_seed=cfg.seed,
+            )  # fmt: skip
+            on_row({**row, **result, "eval_s": time.perf_counter() - start})
+    finally:
+        vec_env.close()
+
+
+def checkpoint_label(checkpoint: str) -> str:
+    """``run/train/step`` of ``…/run/train/checkpoints/step/pretrained_model``, else the path."""
+    parts = Path(checkpoint).parts
+    if "checkpoints" not in parts:
+        return checkpoint
+    i = len(parts) - 1 - parts[::-1].index("checkpoints")
+    return "/".join(parts[max(0, i - 2) : i] + parts[i + 1 : i + 2])
+
+
+def _series(row: dict) -> str:
+    steps = "" if row["inference_steps"] is None else f" K/IS={row['inference_steps']}"
+    return f"{checkpoint_label(row['checkpoint'])} ({row['policy']}{steps}) {row['mode']}"
+
+
+def _success_cell(row: dict | None) -> str:
+    return "–" if row is None else f"{row['pc_success']:.0f} ({row['n_episodes']})"
+
+
+def format_tables(rows: list[dict]) -> str:
+    """Markdown: success % per series (checkpoint, policy, K/IS, mode) and latency; then the
+    smoothness of every cell (largest jumps, jerk)."""
+    done = [r for r in rows if "skipped" not in r]
+    latencies = sorted({r["latency_ms"] for r in done}, key=lambda x: (isinstance(x, str), x))
+    series: dict[str, dict] = {}
+    for r in done:
+        series.setdefault(_series(r), {})[r["latency_ms"]] = r
+    head = " | ".join(f"{x:g} ms" if not isinstance(x, str) else x for x in latencies)
+    lines = [
+        "Success % (episodes) against inference latency",
+        "",
+        f"| series | {head} |",
+        "| --- |" + " ---: |" * len(latencies),
+    ]
+    for name, cells in series.items():
+        vals = [_success_cell(cells.get(x)) for x in latencies]
+        lines.append(f"| {name} | " + " | ".join(vals) + " |")
+    lines += [
+        "",
+        "Smoothness of the commanded target (mean over episodes of each episode's largest jump; "
+        "jerk: mean squared third difference of positions per step)",
+        "",
+        "| series | latency | held steps / chunk | max jump pos (mm) | max jump rot (deg) | jerk (mm²) |",
+        "| --- | ---: | ---: | ---: | ---: | ---: |",
+    ]
+    for r in done:
+        lat = r["latency_ms"] if isinstance(r["latency_ms"], str) else f"{r['latency_ms']:g} ms"
+        lines.append(
+            f"| {_series(r)} | {lat} | {r['held_steps_per_chunk']:.1f} | "
+            f"{1e3 * r['mean_max_position_jump_m']:.1f} | "
+            f"{math.degrees(r['mean_max_rotation_jump_rad']):.1f} | {1e6 * r['mean_jerk_m2']:.2f} |"
+        )
+    skipped = [r for r in rows if "skipped" in r]
+    if skipped:
+        lines += ["", "Skipped: " + "; ".join(f"{_series(r)}: {r['skipped']}" for r in skipped)]
+    return "\n".join(lines)
+
+
+def plot_success(rows: list[dict], path: Path) -> Path | None:
+    """Success against injected latency, one line per series; None without matplotlib."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        return None
+    series: dict[str, list[tuple[float, float]]] = {}
+    for r in rows:
+        if "skipped" not in r and not isinstance(r["latency_ms"], str):
+            series.setdefault(_series(r), []).append((r["latency_ms"], r["pc_success"]))
+    if not series:
+        return None
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    for name, pts in series.items():
+        pts.sort()
+        ax.plot([p[0] for p in pts], [p[1] for p in pts], marker="o", label=name)
+    ax.set_xlabel("injected inference latency (ms)")
+    ax.set_ylabel("success (%)")
+    ax.set_ylim(-2, 102)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def _write(cfg: LatencySweepConfig, rows: list[dict], final: bool) -> None:
+    out = Path(cfg.output_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    settings = {
+        "env_type": cfg.env.type,
+        "task": getattr(cfg.env, "task", None),
+        "episode_length": getattr(cfg.env, "episode_length", None),
+        "control_period_s": 1.0 / cfg.env.fps,
+        "scheme": asdict(Scheme(cfg.scheme_action_steps, cfg.scheme_smoothing)),
+        "seed": cfg.seed,
+        "n_episodes": cfg.eval.n_episodes,
+        "complete": final,
+    }
+    (out / "latency_results.json").write_text(json.dumps({"settings": settings, "cells": rows}, indent=1))
+    (out / "latency_results.md").write_text(format_tables(rows) + "\n")
+    if final:
+        plot_success(rows, out / "latency_success.png")
+
+
+def run_latency_sweep(cfg: LatencySweepConfig) -> list[dict]:
+    """Evaluate every cell; if ``output_dir``, writes the JSON and the markdown after each cell
+    (``settings.complete`` False until the end), then the plot."""
+    if not cfg.checkpoints:
+        raise ValueError("no checkpoints given: pass --checkpoints='[path/to/pretrained_model, ...]'")
+    rows: list[dict] = []
+
+    def on_row(row: dict) -> None:
+        rows.append(row)
+        logging.info("latency sweep: %s", {k: v for k, v in row.items() if k != "episodes"})
+        if cfg.output_dir is not None:
+            _write(cfg, rows, final=False)
+
+    for ckpt in cfg.checkpoints:
+        _evaluate_checkpoint(cfg, ckpt, on_row)
+    if cfg.output_dir is not None:
+        _write(cfg, rows, final=True)
+    return rows
+
+
+def main(argv: list[str] | None = None) -> list[dict]:
+    """CLI entry point (``python benchmarks/latency_sweep.py --help``)."""
+    from lerobot.utils.import_utils import register_third_party_plugins
+
+    logging.basicConfig(level=logging.INFO, force=True)
+    register_third_party_plugins()  # our policy and env types, like lerobot-eval
+    cfg = draccus.parse(LatencySweepConfig, args=sys.argv[1:] if argv is None else argv)
+    rows = run_latency_sweep(cfg)
+    print(format_tables(rows))
+    return rows
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,103 @@
+"""The latency-honest evaluation on a real task with a tiny untrained ActionFlow checkpoint."""
+
+import json
+
+import numpy as np
+import pytest
+import torch
+from lerobot.configs.default import EvalConfig
+from lerobot.configs.policies import PreTrainedConfig
+from lerobot.envs.factory import make_env_pre_post_processors
+from lerobot.policies.factory import make_policy, make_pre_post_processors
+from lerobot.scripts.lerobot_eval import rollout
+
+from lerobot_actionflow.envs.configuration import ActionFlowEnvConfig
+from lerobot_actionflow.envs.latency_hold import make_latency_envs
+from lerobot_actionflow.evaluation.latency import ChunkLatency
+from lerobot_actionflow.evaluation.latency_sweep import LatencySweepConfig, run_latency_sweep
+from lerobot_actionflow.evaluation.untrained import save_untrained_actionflow
+
+STEPS = 6  # control steps per episode
+
+
+@pytest.fixture(scope="module")
+def checkpoint(tmp_path_factory):
+    return save_untrained_actionflow("Lift", tmp_path_factory.mktemp("ckpt") / "pretrained_model")
+
+
+def test_zero_latency_gives_exactly_the_ordinary_evaluations_actions(checkpoint):
+    env_cfg = ActionFlowEnvConfig(task="Lift", episode_length=STEPS)
+    policy_cfg = PreTrainedConfig.from_pretrained(checkpoint)
+    policy_cfg.pretrained_path = checkpoint
+    policy = make_policy(cfg=policy_cfg, env_cfg=env_cfg).eval()
+    processors = (
+        *make_env_pre_post_processors(env_cfg=env_cfg, policy_cfg=policy_cfg),
+        *make_pre_post_processors(policy_cfg=policy_cfg, pretrained_path=str(checkpoint)),
+    )
+    plain = env_cfg.create_envs(n_envs=1)["actionflow"][0]
+    held = make_latency_envs(env_cfg, n_envs=1)
+    try:
+        torch.manual_seed(0)
+        ordinary = rollout(plain, policy, *processors, seeds=[3])["action"]
+        actions = {}
+        for latency in (0.0, 0.1):
+            torch.manual_seed(0)
+            with ChunkLatency(policy, held, control_period_s=0.05, latency_s=latency) as hook:
+                actions[latency] = rollout(held, policy, *processors, seeds=[3])["action"]
+            (record,) = held.call("pop_episode_records")[0]
+            assert record["control_steps"] == STEPS
+            assert record["held_steps"] == len(hook.holds) * (0 if latency == 0 else 2)
+    finally:
+        plain.close()
+        held.close()
+    assert policy.select_action.__func__ is type(policy).select_action  # the hook is removed
+    assert torch.equal(actions[0.0], ordinary)
+    # control: with a latency the env moved on while the policy thought, so it saw other states
+    assert actions[0.1].shape[1] < ordinary.shape[1] or not torch.equal(actions[0.1], ordinary)
+
+
+def test_latency_sweep_writes_every_cell(checkpoint, tmp_path):
+    cfg = LatencySweepConfig(
+        env=ActionFlowEnvConfig(task="Lift", episode_length=STEPS),
+        checkpoints=[str(checkpoint)],
+        latencies_ms=[0, 100],
+        modes=["plain", "scheme", "rtc"],
+        eval=EvalConfig(n_episodes=1, batch_size=1),
+        output_dir=tmp_path,
+    )
+    rows = run_latency_sweep(cfg)
+    saved = json.loads((tmp_path / "latency_results.json").read_text())
+    assert len(saved["cells"]) == len(rows) == 6
+    for row in saved["cells"]:
+        assert row["n_episodes"] == 1 and row["episodes"][0]["control_steps"] == STEPS
+        assert row["pc_success"] == row["lerobot_pc_success"]
+        assert row["mean_hold_steps"] == (0 if row["latency_ms"] == 0 else 2)
+        figures = [row["max_position_jump_m"], row["max_rotation_jump_rad"], row["mean_jerk_m2"]]
+        assert np.isfinite(figures).all()
+    table = (tmp_path / "latency_results.md").read_text()
+    assert "100 ms" in table and "scheme" in table and "rtc" in table
+    pytest.importorskip("matplotlib")
+    assert (tmp_path / "latency_success.png").stat().st_size > 0
+
+
+def test_the_held_target_at_an_episodes_start_keeps_the_arm_still():
+    import gymnasium as gym
+
+    from lerobot_actionflow.envs.latency_hold import idle_target
+    from lerobot_actionflow.rotations import geodesic_distance
+
+    env = gym.make("lerobot_actionflow/Lift-v0", max_episode_steps=STEPS)
+    try:
+        obs, _ = env.reset(seed=0)
+        p0, r0 = env.unwrapped.eef_pose()
+        for _ in range(STEPS - 1):
+            env.step(idle_target(obs))
+        p1, r1 = env.unwrapped.eef_pose()
+        assert np.linalg.norm(p1 - p0) < 1e-5 and geodesic_distance(r0, r1) < 1e-5
+        # control: a target 5 cm away does move it
+        moved = idle_target(obs)
+        moved[2] += 0.05
+        env.step(moved)
+        assert np.linalg.norm(env.unwrapped.eef_pose()[0] - p1) > 1e-3
+    finally:
+        env.close()
