@@ -8,7 +8,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from lerobot_actionflow.envs.point_cloud import farthest_point_sample
+from lerobot_actionflow.envs.point_cloud import PointCloudSensor, farthest_point_sample
 from lerobot_actionflow.envs.point_cloud_config import PointCloudConfig
 from lerobot_actionflow.rotations import quaternion_to_matrix
 from lerobot_actionflow.schema import ENV_POINT_CLOUD, POINT_CLOUD_KEY
@@ -89,19 +89,18 @@ def test_image_rows_flipped_the_wrong_way_put_points_off_the_cube(lift_pc, monke
     assert len(pts) == 0 or _surface_distance(pts, half).max() > 0.05
 
 
-def test_crop_box_bounds_the_points():
+def test_crop_box_bounds_the_points(lift_pc):
     low, high = (-0.5, -0.5, 0.8), (0.5, 0.5, 0.83)  # cuts the cube at 0.83 m
-    env = gym.make(
-        "lerobot_actionflow/Lift-v0", point_cloud={"num_points": 64, "box_low": low, "box_high": high}
-    )
-    try:
-        half = _cube_at_known_pose(env.unwrapped)
-        pts = env.unwrapped.point_cloud_sensor.fused_points()
-        assert len(pts) > 10
-        assert (pts >= low).all() and (pts <= high).all()
-        assert _surface_distance(pts, half).max() < SURFACE_TOL
-    finally:
-        env.close()
+    config = PointCloudConfig(num_points=64, box_low=low, box_high=high)
+    sim = lift_pc.robosuite_env.sim
+    robot = mujoco.mj_name2id(sim.model._model, mujoco.mjtObj.mjOBJ_BODY, "robot0_base")
+    sensor = PointCloudSensor(sim, lift_pc._renderer, config, None, None, [robot])  # on the env's renderer
+    half = _cube_at_known_pose(lift_pc)
+    pts = sensor.fused_points()
+    assert len(pts) > 10
+    assert (pts >= low).all() and (pts <= high).all()
+    assert _surface_distance(pts, half).max() < SURFACE_TOL
+    assert (pts[:, 2] > 0.825).any()  # the crop cut through the cube, not below it
 
 
 def test_same_state_same_cloud_and_the_space_contains_it(lift_pc):
