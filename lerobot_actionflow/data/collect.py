@@ -4,7 +4,7 @@
                        [--repo-id local/lift] [--cameras wrist,agentview] [--image-size 84]
                        [--image-format video|image] [--max-attempts K]
                        [--point-cloud] [--point-cloud-points 512] [--point-cloud-dtype float16]
-                       [--point-cloud-cameras agentview,sideview] [--point-cloud-image-size 128]
+                       [--point-cloud-cameras CAM,CAM] [--point-cloud-image-size 128]
 
 Semantics:
 
@@ -196,7 +196,7 @@ def collect(
     progress: bool = True,
     point_cloud: bool = False,
     point_cloud_points: int = DEFAULT_POINT_CLOUD_POINTS,
-    point_cloud_cameras: tuple[str, ...] = ("agentview", "sideview"),
+    point_cloud_cameras: tuple[str, ...] = (),
     point_cloud_image_size: int = 128,
     point_cloud_dtype: str = "float16",
 ) -> dict[str, Any]:
@@ -217,7 +217,8 @@ def collect(
     cams = tuple(cameras) if images else ()
     pc = None
     if point_cloud:
-        pc = {"num_points": int(point_cloud_points), "cameras": list(point_cloud_cameras),
+        cams_pc = list(point_cloud_cameras or spec.point_cloud_cameras)  # recorded as resolved
+        pc = {"num_points": int(point_cloud_points), "cameras": cams_pc,
               "image_size": int(point_cloud_image_size), "dtype": point_cloud_dtype}  # fmt: skip
         _pc_env_kwargs(pc)  # ValueError naming a bad setting, before any work
     features = schema_features(
@@ -337,7 +338,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--point-cloud", action="store_true", help="also record observation.point_cloud (M, 3)")
     p.add_argument("--point-cloud-points", type=int, default=DEFAULT_POINT_CLOUD_POINTS, help="M points")
-    p.add_argument("--point-cloud-cameras", default="agentview,sideview", help="depth cameras fused (>= 2)")
+    p.add_argument(
+        "--point-cloud-cameras", default="", help="depth cameras fused (>= 2; default: the task's)"
+    )
     p.add_argument("--point-cloud-image-size", type=int, default=128, help="depth image size per camera")
     p.add_argument("--point-cloud-dtype", choices=POINT_CLOUD_DTYPES, default="float16", help="dataset dtype")
     return p

@@ -62,7 +62,8 @@ class ActionFlowEnvConfig(EnvConfig):
         point_cloud: add ``observation.point_cloud`` ``(point_cloud_points, 3)``, world/base
             frame, metres (:mod:`lerobot_actionflow.envs.point_cloud`).
         point_cloud_points: M, the points of the cloud.
-        point_cloud_cameras: comma-separated depth cameras fused into it (two or more).
+        point_cloud_cameras: comma-separated depth cameras fused into it (two or more); empty
+            for the task's own (``agentview,sideview``; Can: ``agentview,birdview``).
         point_cloud_image_size: square depth image size per camera, in pixels.
         point_cloud_box_low, point_cloud_box_high: the crop box corners (world frame, metres);
             both ``None`` for the task's action workspace box.
@@ -85,7 +86,7 @@ class ActionFlowEnvConfig(EnvConfig):
     terminate_on_success: bool = True
     point_cloud: bool = False
     point_cloud_points: int = DEFAULT_POINT_CLOUD_POINTS
-    point_cloud_cameras: str = "agentview,sideview"
+    point_cloud_cameras: str = ""
     point_cloud_image_size: int = 128
     point_cloud_box_low: tuple[float, float, float] | None = None
     point_cloud_box_high: tuple[float, float, float] | None = None
@@ -155,7 +156,7 @@ class ActionFlowEnvConfig(EnvConfig):
             return False
         kw = {
             "num_points": int(self.point_cloud_points),
-            "cameras": tuple(c.strip() for c in self.point_cloud_cameras.split(",") if c.strip()),
+            "cameras": tuple(c.strip() for c in self.point_cloud_cameras.split(",") if c.strip()) or None,
             "image_height": int(self.point_cloud_image_size),
             "image_width": int(self.point_cloud_image_size),
             "box_low": None if self.point_cloud_box_low is None else tuple(self.point_cloud_box_low),

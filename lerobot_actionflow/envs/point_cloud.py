@@ -21,9 +21,10 @@ Pipeline, per camera ``c`` (an image of ``H x W`` pixels):
    ``(row v, column u)`` covers ``[u, u + 1] x [v, v + 1]``, so its centre back-projects to
    ``p_c = z K^-1 [u + 1/2, v + 1/2, 1]^T`` and ``p_w = R_wc p_c + t_wc``.
 3. Removal by segmentation, exact to the pixel: a pixel is kept only if it shows a geom whose
-   body is neither the world body (floor, walls), nor in the subtree of the arena's ``table``
-   body, nor in a robot's subtree (arm, mount, gripper), nor a mocap marker. Sites and
-   collision geoms are not drawn, so they neither appear nor occlude.
+   body is neither the world body (floor, walls), nor in the subtree of a body the task removes
+   (:attr:`TaskSpec.point_cloud_removed`: the ``table``, or Can's bins and cell markers), nor
+   in a robot's subtree (arm, mount, gripper), nor a mocap marker. Sites and collision geoms
+   are not drawn, so they neither appear nor occlude.
 4. Crop to the workspace box ``low <= p_w <= high`` (world frame; the task's action workspace
    box unless :class:`~lerobot_actionflow.envs.point_cloud_config.PointCloudConfig` gives one).
 
@@ -76,14 +77,17 @@ def farthest_point_sample(points: np.ndarray, num_points: int, seed: int = 0) ->
     return chosen
 
 
-def removed_bodies(model: mujoco.MjModel, robot_root_bodies: list[int]) -> np.ndarray:
+def removed_bodies(model: mujoco.MjModel, bodies: list[int]) -> np.ndarray:
     """Boolean mask ``(nbody,)`` of the bodies whose geoms never enter the cloud: the world
-    body, the subtree of the body named ``table``, the subtrees of ``robot_root_bodies``, and
-    mocap bodies (robosuite's target markers)."""
-    root = np.asarray(model.body_rootid)
-    table = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "table")
-    drop_roots = [int(root[b]) for b in robot_root_bodies] + ([int(root[table])] if table >= 0 else [])
-    mask = np.isin(root, drop_roots) | (np.asarray(model.body_mocapid) >= 0)
+    body, the subtrees of ``bodies`` (robots' root bodies, support bodies), and mocap bodies
+    (robosuite's target markers). A MuJoCo body's parent has a lower id, so one pass in id
+    order marks whole subtrees."""
+    mask = np.zeros(model.nbody, dtype=bool)
+    mask[list(bodies)] = True
+    parent = np.asarray(model.body_parentid)
+    for b in range(1, model.nbody):
+        mask[b] |= mask[parent[b]]
+    mask |= np.asarray(model.body_mocapid) >= 0
     mask[0] = True
     return mask
 
@@ -96,11 +100,16 @@ class PointCloudSensor:
         renderer: the env's :class:`CameraRenderer` on the same model and data.
         config: a :class:`PointCloudConfig`.
         box_low, box_high: the crop box used when the config gives none.
-        robot_root_bodies: body ids of the robots' root bodies (their subtrees are removed).
+        removed: names of the bodies whose subtrees are removed (the robots' root bodies and
+            the task's support bodies).
+        cameras: the cameras used when the config gives none.
+
+    Raises:
+        ValueError: an unknown camera or body (naming the known cameras, or the body).
     """
 
     def __init__(self, sim, renderer: CameraRenderer, config: PointCloudConfig, box_low, box_high,
-                 robot_root_bodies: list[int]):  # fmt: skip
+                 removed: tuple[str, ...], cameras: tuple[str, ...] = ("agentview", "sideview")):  # fmt: skip
         from robosuite.utils import camera_utils
 
         self._utils = camera_utils
@@ -109,10 +118,14 @@ class PointCloudSensor:
         low = config.box_low if config.box_low is not None else box_low
         high = config.box_high if config.box_high is not None else box_high
         self.box_low, self.box_high = np.asarray(low, np.float64), np.asarray(high, np.float64)
-        self.names = [CAMERA_ALIASES.get(c, c) for c in config.cameras]
-        for cam in config.cameras:
+        self.cameras = tuple(config.cameras or cameras)
+        self.names = [CAMERA_ALIASES.get(c, c) for c in self.cameras]
+        for cam in self.cameras:
             renderer.camera_id(cam)  # ValueError naming the known cameras
-        keep_body = ~removed_bodies(model, robot_root_bodies)
+        ids = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, name) for name in removed]
+        if min(ids, default=0) < 0:
+            raise ValueError(f"point cloud: no body {removed[ids.index(-1)]!r} to remove in the model")
+        keep_body = ~removed_bodies(model, ids)
         # Lookup table over geom ids shifted by one: index 0 is "no geom" (background, -1).
         self._keep_geom = np.concatenate([[False], keep_body[np.asarray(model.geom_bodyid)]])
         h, w = config.image_height, config.image_width
@@ -133,7 +146,7 @@ class PointCloudSensor:
         those geoms' ids ``(K,)`` (nothing removed or cropped)."""
         cfg = self.config
         size = (cfg.image_height, cfg.image_width)
-        depth, geoms = self._renderer.render_depth_and_geoms(cfg.cameras[index], *size)
+        depth, geoms = self._renderer.render_depth_and_geoms(self.cameras[index], *size)
         geoms = geoms.reshape(-1)
         hit = geoms >= 0
         pose = self._utils.get_camera_extrinsic_matrix(self._sim, self.names[index])

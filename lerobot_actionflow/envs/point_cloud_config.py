@@ -20,7 +20,8 @@ class PointCloudConfig:
     Attributes:
         num_points: ``M``, the rows of the cloud.
         cameras: two or more depth cameras (aliases as in
-            :data:`~lerobot_actionflow.envs.rendering.CAMERA_ALIASES`, or model camera names).
+            :data:`~lerobot_actionflow.envs.rendering.CAMERA_ALIASES`, or model camera names);
+            ``None`` (or empty) for the task's :attr:`TaskSpec.point_cloud_cameras`.
         image_height, image_width: depth image size per camera (more pixels: denser, slower).
         box_low, box_high: the workspace crop box in the world frame (metres); ``None`` for the
             task's action workspace box.
@@ -28,7 +29,7 @@ class PointCloudConfig:
     """
 
     num_points: int = DEFAULT_POINT_CLOUD_POINTS
-    cameras: tuple[str, ...] = ("agentview", "sideview")
+    cameras: tuple[str, ...] | None = None
     image_height: int = 128
     image_width: int = 128
     box_low: tuple[float, float, float] | None = None
@@ -36,9 +37,10 @@ class PointCloudConfig:
     seed: int = 0
 
     def __post_init__(self):
-        cams = self.cameras.split(",") if isinstance(self.cameras, str) else self.cameras
-        object.__setattr__(self, "cameras", tuple(c.strip() for c in cams if c.strip()))
-        if len(self.cameras) < 2:
+        cams = self.cameras.split(",") if isinstance(self.cameras, str) else (self.cameras or ())
+        cams = tuple(c.strip() for c in cams if c.strip())
+        object.__setattr__(self, "cameras", cams or None)
+        if self.cameras is not None and len(self.cameras) < 2:
             raise ValueError(f"point_cloud needs two or more cameras, got {list(self.cameras)}")
         if int(self.num_points) < 1:
             raise ValueError(f"point_cloud num_points must be >= 1, got {self.num_points}")

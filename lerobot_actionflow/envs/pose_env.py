@@ -174,11 +174,14 @@ class PoseTokenEnv(gym.Env):
         pc_config = PointCloudConfig.coerce(point_cloud)
         self._point_cloud = None
         if pc_config is not None:
-            body = mujoco.mjtObj.mjOBJ_BODY
-            roots = [mujoco.mj_name2id(self._model, body, r.robot_model.root_body) for r in self._env.robots]
-            self._point_cloud = PointCloudSensor(
-                self._env.sim, self._renderer, pc_config, self._ws_low, self._ws_high, roots
+            removed = (
+                *(r.robot_model.root_body for r in self._env.robots),
+                *self.spec_task.point_cloud_removed,
             )
+            self._point_cloud = PointCloudSensor(
+                self._env.sim, self._renderer, pc_config, self._ws_low, self._ws_high, removed,
+                self.spec_task.point_cloud_cameras,
+            )  # fmt: skip
 
         n = self.spec_task.num_tokens
         obs_spaces: dict[str, gym.Space] = {

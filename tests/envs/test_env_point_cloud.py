@@ -92,15 +92,29 @@ def test_image_rows_flipped_the_wrong_way_put_points_off_the_cube(lift_pc, monke
 def test_crop_box_bounds_the_points(lift_pc):
     low, high = (-0.5, -0.5, 0.8), (0.5, 0.5, 0.83)  # cuts the cube at 0.83 m
     config = PointCloudConfig(num_points=64, box_low=low, box_high=high)
-    sim = lift_pc.robosuite_env.sim
-    robot = mujoco.mj_name2id(sim.model._model, mujoco.mjtObj.mjOBJ_BODY, "robot0_base")
-    sensor = PointCloudSensor(sim, lift_pc._renderer, config, None, None, [robot])  # on the env's renderer
+    sim, removed = lift_pc.robosuite_env.sim, ("robot0_base", "table")
+    sensor = PointCloudSensor(sim, lift_pc._renderer, config, None, None, removed)  # on the env's renderer
     half = _cube_at_known_pose(lift_pc)
     pts = sensor.fused_points()
     assert len(pts) > 10
     assert (pts >= low).all() and (pts <= high).all()
     assert _surface_distance(pts, half).max() < SURFACE_TOL
     assert (pts[:, 2] > 0.825).any()  # the crop cut through the cube, not below it
+
+
+def test_can_in_the_bins_arena_keeps_only_the_can():
+    """Can has no table and no side camera: its cameras are the task's own, the bins and the
+    target-cell markers are removed, and what remains is the can (about 0.04 m in radius)."""
+    env = gym.make("lerobot_actionflow/Can-v0", point_cloud={"num_points": 64})
+    try:
+        obs, _ = env.reset(seed=0)
+        assert env.unwrapped.point_cloud_sensor.cameras == ("agentview", "birdview")
+        can = obs["poses"][1, :3]
+        pts = env.unwrapped.point_cloud_sensor.fused_points()
+        assert len(pts) > 20
+        assert np.linalg.norm(pts - can, axis=1).max() < 0.07
+    finally:
+        env.close()
 
 
 def test_same_state_same_cloud_and_the_space_contains_it(lift_pc):
@@ -164,6 +178,7 @@ def test_point_cloud_config_rejects_bad_settings():
     with pytest.raises(TypeError, match="point_cloud"):
         PointCloudConfig.coerce("yes")
     assert PointCloudConfig.coerce(True) == PointCloudConfig()
+    assert PointCloudConfig(cameras="").cameras is None  # the task's cameras
     assert PointCloudConfig.coerce(False) is None
 
 
