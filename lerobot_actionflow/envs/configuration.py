@@ -63,7 +63,7 @@ class ActionFlowEnvConfig(EnvConfig):
             frame, metres (:mod:`lerobot_actionflow.envs.point_cloud`).
         point_cloud_points: M, the points of the cloud.
         point_cloud_cameras: comma-separated depth cameras fused into it (two or more); empty
-            for the task's own (``agentview,sideview``; Can: ``agentview,birdview``).
+            for the task's own (:attr:`TaskSpec.point_cloud_cameras`).
         point_cloud_image_size: square depth image size per camera, in pixels.
         point_cloud_box_low, point_cloud_box_high: the crop box corners (world frame, metres);
             both ``None`` for the task's action workspace box.

@@ -50,7 +50,7 @@ def farthest_point_sample(points: np.ndarray, num_points: int, seed: int = 0) ->
     ``i_{k+1} = argmax_j min_{l <= k} |p_j - p_{i_l}|`` (ties: the lowest index), with the
     running minimum squared distances kept in one vector (``O(K M)`` time, ``O(K)`` memory;
     coordinates are held as three contiguous rows and every step writes into preallocated
-    buffers, which makes a step about 4 times cheaper than a ``(K, 3)`` difference). The same
+    buffers, a few times cheaper than forming a ``(K, 3)`` difference per step). The same
     points and seed give the same indices.
 
     With fewer than ``num_points`` points (``K < M``), all ``K`` are ordered this way and the
@@ -89,7 +89,7 @@ def farthest_point_sample(points: np.ndarray, num_points: int, seed: int = 0) ->
 
 def removed_bodies(model: mujoco.MjModel, bodies: list[int]) -> np.ndarray:
     """Boolean mask ``(nbody,)`` of the bodies whose geoms never enter the cloud: the world
-    body, the subtrees of ``bodies`` (robots' root bodies, support bodies), and mocap bodies
+    body, the subtrees of ``bodies`` (robots' root bodies, support surfaces), and mocap bodies
     (robosuite's target markers). A MuJoCo body's parent has a lower id, so one pass in id
     order marks whole subtrees."""
     mask = np.zeros(model.nbody, dtype=bool)
@@ -111,7 +111,7 @@ class PointCloudSensor:
         config: a :class:`PointCloudConfig`.
         box_low, box_high: the crop box used when the config gives none.
         removed: names of the bodies whose subtrees are removed (the robots' root bodies and
-            the task's support bodies).
+            the task's :attr:`TaskSpec.point_cloud_removed`).
         cameras: the cameras used when the config gives none.
 
     Raises:
@@ -136,8 +136,7 @@ class PointCloudSensor:
         if min(ids, default=0) < 0:
             raise ValueError(f"point cloud: no body {removed[ids.index(-1)]!r} to remove in the model")
         keep_body = ~removed_bodies(model, ids)
-        # Lookup table over geom ids shifted by one: index 0 is "no geom" (background, -1).
-        self._keep_geom = np.concatenate([[False], keep_body[np.asarray(model.geom_bodyid)]])
+        self._keep_geom = keep_body[np.asarray(model.geom_bodyid)]  # (ngeom,)
         h, w = config.image_height, config.image_width
         v, u = np.mgrid[0:h, 0:w]
         pix = np.stack([u + 0.5, v + 0.5, np.ones_like(u, dtype=np.float64)], axis=-1).reshape(-1, 3)
@@ -168,7 +167,7 @@ class PointCloudSensor:
         parts = []
         for i in range(len(self.names)):
             pts, geoms = self.camera_points(i)
-            keep = self._keep_geom[geoms + 1]
+            keep = self._keep_geom[geoms]
             keep &= ((pts >= self.box_low) & (pts <= self.box_high)).all(axis=1)
             parts.append(pts[keep])
         return np.concatenate(parts, axis=0)
