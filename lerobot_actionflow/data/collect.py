@@ -3,6 +3,8 @@
     actionflow-collect --task Lift --episodes 100 --root data/lift [--images] [--seed 0]
                        [--repo-id local/lift] [--cameras wrist,agentview] [--image-size 84]
                        [--image-format video|image] [--max-attempts K]
+                       [--point-cloud] [--point-cloud-points 512] [--point-cloud-dtype float16]
+                       [--point-cloud-cameras CAM,CAM] [--point-cloud-image-size 128]
 
 Semantics:
 
@@ -25,6 +27,10 @@ Semantics:
 - ``meta/actionflow_collect.json`` records task, variant, expert class and version, base seed,
   the seeds kept and failed, attempts, successes and the success rate; it is rewritten after
   every run (the staged ``state.json`` after every attempt).
+- ``--point-cloud`` adds ``observation.point_cloud`` ``(M, 3)`` (world/base frame, metres;
+  :mod:`lerobot_actionflow.envs.point_cloud`), stored as float16 by default
+  (:func:`~lerobot_actionflow.data.features.schema_features`); its settings are recorded under
+  ``point_cloud`` in the metadata, and a resumed run must ask for the same.
 - fps is the env's control frequency (:data:`~lerobot_actionflow.envs.tasks.CONTROL_FREQ`). Each
   frame holds the observation the expert saw and the action it took on it (``action[t]`` is the
   absolute EEF target sent at step ``t``).
@@ -43,6 +49,7 @@ from pathlib import Path
 from typing import Any
 
 from lerobot_actionflow.data.staging import META_FILE, InconsistentDataset, Staging, check_dataset, read_json
+from lerobot_actionflow.schema import DEFAULT_POINT_CLOUD_POINTS, POINT_CLOUD_DTYPES
 
 __all__ = ["META_FILE", "collect", "main", "read_collect_meta"]
 
@@ -87,15 +94,22 @@ class _StopFlag:
         return self.stop
 
 
-def _settings_differ(meta: dict[str, Any], spec, cams, seed: int) -> bool:
-    return meta["task"] != spec.name or meta["images"] != bool(cams) or meta["base_seed"] != seed
+def _settings_differ(meta: dict[str, Any], spec, cams, seed: int, pc: dict | None) -> bool:
+    return (
+        meta["task"] != spec.name
+        or meta["images"] != bool(cams)
+        or meta["base_seed"] != seed
+        or meta.get("point_cloud") != pc
+    )
 
 
 def _target_meta(root: Path) -> dict[str, Any] | None:
     return read_collect_meta(root) if (root / "meta" / "info.json").is_file() else None
 
 
-def _check_target(root: Path, repo_id: str, spec, cams, seed: int, features: dict) -> dict[str, Any] | None:
+def _check_target(
+    root: Path, repo_id: str, spec, cams, seed: int, features: dict, pc: dict | None
+) -> dict[str, Any] | None:
     """The collection metadata of the dataset at ``root`` after checking that it is whole and
     matches the request; ``None`` when there is no dataset yet.
 
@@ -112,10 +126,11 @@ def _check_target(root: Path, repo_id: str, spec, cams, seed: int, features: dic
     meta = read_collect_meta(root)
     if meta is None:
         raise ValueError(f"{root} holds a dataset without {META_FILE}; not written by actionflow-collect")
-    if _settings_differ(meta, spec, cams, seed):
+    if _settings_differ(meta, spec, cams, seed, pc):
         raise ValueError(
-            f"{root} holds a {meta['task']} dataset (images={meta['images']}, seed={meta['base_seed']}); "
-            f"asked for {spec.name} (images={bool(cams)}, seed={seed}): use another --root"
+            f"{root} holds a {meta['task']} dataset (images={meta['images']}, seed={meta['base_seed']}, "
+            f"point_cloud={meta.get('point_cloud')}); asked for {spec.name} (images={bool(cams)}, "
+            f"seed={seed}, point_cloud={pc}): use another --root"
         )
     try:
         check_dataset(root, repo_id, meta)
@@ -133,24 +148,28 @@ def _check_target(root: Path, repo_id: str, spec, cams, seed: int, features: dic
     return meta
 
 
-def _run_meta(staging: Staging, target: dict[str, Any] | None, spec, cls, cams, seed: int) -> dict[str, Any]:
+def _run_meta(
+    staging: Staging, target: dict[str, Any] | None, spec, cls, cams, seed: int, pc: dict | None
+) -> dict[str, Any]:
     """The metadata this run continues from: the staged state (an earlier run's unmerged work),
     else the dataset's, else a fresh one; staged episodes it does not list yet are added."""
     from lerobot_actionflow.envs.tasks import CONTROL_FREQ
 
     state = staging.read_state()
-    if state is not None and _settings_differ(state, spec, cams, seed):
+    if state is not None and _settings_differ(state, spec, cams, seed, pc):
         raise ValueError(
             f"{staging.dir} holds an unfinished {state['task']} collection (images={state['images']}, "
-            f"seed={state['base_seed']}): run that command again to finish it, or delete {staging.dir}"
+            f"seed={state['base_seed']}, point_cloud={state.get('point_cloud')}): run that command again "
+            f"to finish it, or delete {staging.dir}"
         )
     meta = state or copy.deepcopy(target)
     if meta is None:
         meta = {
             "task": spec.name, "variant": spec.variant, "expert": f"{cls.__module__}.{cls.__qualname__}",
             "expert_version": cls.version, "base_seed": seed, "images": bool(cams), "cameras": list(cams),
-            "fps": CONTROL_FREQ, "next_attempt": 0, "attempts": 0, "successes": 0, "seeds_kept": [],
-            "seeds_failed": [], "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
+            "point_cloud": pc, "fps": CONTROL_FREQ, "next_attempt": 0, "attempts": 0, "successes": 0,
+            "seeds_kept": [], "seeds_failed": [],
+            "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
         }  # fmt: skip
     for attempt in staging.staged():  # saved just before a crash, ahead of state.json
         if seed + attempt in meta["seeds_kept"]:
@@ -175,6 +194,11 @@ def collect(
     image_format: str = "video",
     max_attempts: int | None = None,
     progress: bool = True,
+    point_cloud: bool = False,
+    point_cloud_points: int = DEFAULT_POINT_CLOUD_POINTS,
+    point_cloud_cameras: tuple[str, ...] = (),
+    point_cloud_image_size: int = 128,
+    point_cloud_dtype: str = "float16",
 ) -> dict[str, Any]:
     """Collect successful expert episodes until the dataset at ``root`` holds ``episodes``.
 
@@ -191,7 +215,16 @@ def collect(
     root = Path(root)
     repo_id = repo_id or default_repo_id(spec.name)
     cams = tuple(cameras) if images else ()
-    features = schema_features(spec.num_tokens, cams, (image_size, image_size), image_format)
+    pc = None
+    if point_cloud:
+        cams_pc = list(point_cloud_cameras or spec.point_cloud_cameras)  # recorded as resolved
+        pc = {"num_points": int(point_cloud_points), "cameras": cams_pc,
+              "image_size": int(point_cloud_image_size), "dtype": point_cloud_dtype}  # fmt: skip
+        _pc_env_kwargs(pc)  # ValueError naming a bad setting, before any work
+    features = schema_features(
+        spec.num_tokens, cams, (image_size, image_size), image_format,
+        pc["num_points"] if pc else None, point_cloud_dtype,
+    )  # fmt: skip
     if episodes < 0:
         raise ValueError(f"--episodes must be >= 0, got {episodes}")
     if root.exists() and not root.is_dir():
@@ -201,8 +234,8 @@ def collect(
     # next episode boundary; the staged episodes are merged below.
     with _StopFlag() as flag, staging.locked():
         notes = staging.recover(_target_meta)
-        target = _check_target(root, repo_id, spec, cams, seed, features)
-        meta = _run_meta(staging, target, spec, cls, cams, seed)
+        target = _check_target(root, repo_id, spec, cams, seed, features, pc)
+        meta = _run_meta(staging, target, spec, cls, cams, seed, pc)
         meta["expert_version"] = cls.version  # the version of the last run (a resumed set may mix)
         meta["interrupted"] = False
         if len(meta["seeds_kept"]) < episodes and not flag():
@@ -234,9 +267,12 @@ def _collect_episodes(staging, meta, spec, cls, cams, image_size, features, imag
     from lerobot_actionflow.data.features import frame_from_obs
     from lerobot_actionflow.experts.rollout import run_episode
 
+    pc = meta.get("point_cloud")
     env = gym.make(
-        spec.gym_id, cameras=cams, image_height=image_size, image_width=image_size, render_mode=None
-    )
+        spec.gym_id, cameras=cams, image_height=image_size, image_width=image_size, render_mode=None,
+        point_cloud=_pc_env_kwargs(pc) if pc else False,
+    )  # fmt: skip
+    pc_dtype = pc["dtype"] if pc else "float32"
     try:
         expert = cls(env.unwrapped)
         saved, new_attempts = len(meta["seeds_kept"]), 0
@@ -252,7 +288,8 @@ def _collect_episodes(staging, meta, spec, cls, cams, image_size, features, imag
             if ep.interrupted:
                 break
             if ep.success:
-                frames = [frame_from_obs(o, a, spec.description) for o, a in zip(ep.observations, ep.actions)]
+                steps = zip(ep.observations, ep.actions)
+                frames = [frame_from_obs(o, a, spec.description, pc_dtype) for o, a in steps]
                 staging.write_episode(attempt, frames)
                 meta["successes"] += 1
                 meta["seeds_kept"].append(meta["base_seed"] + attempt)
@@ -268,6 +305,18 @@ def _collect_episodes(staging, meta, spec, cls, cams, image_size, features, imag
         bar.close()
     finally:
         env.close()
+
+
+def _pc_env_kwargs(pc: dict) -> dict:
+    """The env's ``point_cloud`` kwargs from the recorded settings (validated)."""
+    from lerobot_actionflow.envs.point_cloud_config import PointCloudConfig
+
+    if pc["dtype"] not in POINT_CLOUD_DTYPES:
+        raise ValueError(f"--point-cloud-dtype must be one of {POINT_CLOUD_DTYPES}, got {pc['dtype']!r}")
+    kw = {"num_points": pc["num_points"], "cameras": tuple(pc["cameras"]),
+          "image_height": pc["image_size"], "image_width": pc["image_size"]}  # fmt: skip
+    PointCloudConfig(**kw)
+    return kw
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -287,6 +336,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--image-format", choices=("video", "image"), default="video")
     p.add_argument("--max-attempts", type=int, default=None, help="stop after this many new attempts")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--point-cloud", action="store_true", help="also record observation.point_cloud (M, 3)")
+    p.add_argument("--point-cloud-points", type=int, default=DEFAULT_POINT_CLOUD_POINTS, help="M points")
+    p.add_argument(
+        "--point-cloud-cameras", default="", help="depth cameras fused (>= 2; default: the task's)"
+    )
+    p.add_argument("--point-cloud-image-size", type=int, default=128, help="depth image size per camera")
+    p.add_argument("--point-cloud-dtype", choices=POINT_CLOUD_DTYPES, default="float16", help="dataset dtype")
     return p
 
 
@@ -305,6 +361,11 @@ def main(argv: list[str] | None = None) -> int:
             image_format=args.image_format,
             max_attempts=args.max_attempts,
             progress=not args.no_progress,
+            point_cloud=args.point_cloud,
+            point_cloud_points=args.point_cloud_points,
+            point_cloud_cameras=tuple(c.strip() for c in args.point_cloud_cameras.split(",") if c.strip()),
+            point_cloud_image_size=args.point_cloud_image_size,
+            point_cloud_dtype=args.point_cloud_dtype,
         )
     except KeyboardInterrupt:
         print("actionflow-collect: interrupted", file=sys.stderr)

@@ -7,7 +7,8 @@ env config (``--env.type=actionflow``) lives in :mod:`.configuration`.
 Modules: ``tasks`` (registry), ``robomimic_tasks`` / ``mimicgen_tasks`` / ``mug_hang_tasks`` (the
 task table), ``pose_env`` (the Gymnasium env), ``controller`` (absolute OSC_POSE),
 ``scene_transform`` (its parameters) and ``scene_mover`` (applying it to a scene), ``arm_ik``
-(inverse kinematics of the arm), ``rendering`` (offscreen camera images), ``registration``,
+(inverse kinematics of the arm), ``rendering`` (offscreen camera images), ``point_cloud`` and
+``point_cloud_config`` (the fused depth-camera point cloud and its settings), ``registration``,
 ``configuration``; robosuite environments written here: ``tabletop`` (their base),
 ``stack_three``, ``threading_task``, ``three_piece_assembly``, ``coffee``, ``mug_hang``
 (``materials``: shared helpers). Keys and shapes come from :mod:`lerobot_actionflow.schema`,
@@ -16,6 +17,7 @@ rotations from :mod:`lerobot_actionflow.rotations`.
 
 import importlib
 
+from lerobot_actionflow.envs.point_cloud_config import PointCloudConfig
 from lerobot_actionflow.envs.registration import register_gym_envs
 from lerobot_actionflow.envs.scene_transform import SceneTransform
 from lerobot_actionflow.envs.tasks import TASKS, Entity, TaskSpec, get_task
@@ -26,4 +28,4 @@ for _module in ("robomimic_tasks", "mimicgen_tasks", "mug_hang_tasks"):
 
 GYM_IDS: list[str] = register_gym_envs()
 
-__all__ = ["GYM_IDS", "TASKS", "Entity", "SceneTransform", "TaskSpec", "get_task"]
+__all__ = ["GYM_IDS", "TASKS", "Entity", "PointCloudConfig", "SceneTransform", "TaskSpec", "get_task"]

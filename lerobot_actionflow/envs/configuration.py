@@ -21,13 +21,17 @@ import lerobot_actionflow.envs as _envs  # registers the gym ids (also in async 
 from lerobot_actionflow.envs.tasks import CONTROL_FREQ, get_task
 from lerobot_actionflow.schema import (
     ACTION_KEY,
+    DEFAULT_POINT_CLOUD_POINTS,
     ENV_AGENT_POS,
+    ENV_POINT_CLOUD,
     ENV_POSES,
     ENV_STATE,
     ENV_TO_DATASET_KEY,
+    POINT_CLOUD_KEY,
     env_pixels_key,
     feature_shapes,
     image_key,
+    point_cloud_shape,
 )
 
 #: LeRobot feature type of each non-image env observation.
@@ -55,6 +59,14 @@ class ActionFlowEnvConfig(EnvConfig):
             :mod:`lerobot_actionflow.envs.scene_transform` for the valid range.
         scene_move_robot: move the arm's initial EEF pose with the scene.
         terminate_on_success: end an episode at its first success step.
+        point_cloud: add ``observation.point_cloud`` ``(point_cloud_points, 3)``, world/base
+            frame, metres (:mod:`lerobot_actionflow.envs.point_cloud`).
+        point_cloud_points: M, the points of the cloud.
+        point_cloud_cameras: comma-separated depth cameras fused into it (two or more); empty
+            for the task's own (:attr:`TaskSpec.point_cloud_cameras`).
+        point_cloud_image_size: square depth image size per camera, in pixels.
+        point_cloud_box_low, point_cloud_box_high: the crop box corners (world frame, metres);
+            both ``None`` for the task's action workspace box.
     """
 
     task: str | None = "Lift"
@@ -72,6 +84,12 @@ class ActionFlowEnvConfig(EnvConfig):
     scene_y: tuple[float, float] = (0.0, 0.0)
     scene_move_robot: bool = False
     terminate_on_success: bool = True
+    point_cloud: bool = False
+    point_cloud_points: int = DEFAULT_POINT_CLOUD_POINTS
+    point_cloud_cameras: str = ""
+    point_cloud_image_size: int = 128
+    point_cloud_box_low: tuple[float, float, float] | None = None
+    point_cloud_box_high: tuple[float, float, float] | None = None
     features: dict[str, PolicyFeature] = field(default_factory=dict)
     features_map: dict[str, str] = field(default_factory=dict)
 
@@ -82,7 +100,7 @@ class ActionFlowEnvConfig(EnvConfig):
             raise ValueError(
                 f"fps must be the control rate {CONTROL_FREQ} of the robosuite tasks, got {self.fps}"
             )
-        for name in ("scene_move_robot", "terminate_on_success"):
+        for name in ("scene_move_robot", "terminate_on_success", "point_cloud"):
             if not isinstance(getattr(self, name), bool):  # a string like "false" would be truthy
                 raise TypeError(f"{name} must be a bool, got {getattr(self, name)!r}")
         sizes = ("observation_height", "observation_width", "visualization_height", "visualization_width")
@@ -103,7 +121,13 @@ class ActionFlowEnvConfig(EnvConfig):
                 type=FeatureType.VISUAL, shape=(self.observation_height, self.observation_width, 3)
             )
             self.features_map[env_pixels_key(cam)] = image_key(cam)
+        if self.point_cloud:
+            self.features[ENV_POINT_CLOUD] = PolicyFeature(
+                type=FeatureType.STATE, shape=point_cloud_shape(self.point_cloud_points)
+            )  # STATE: the type LeRobot gives an ``observation.*`` array of a dataset
+            self.features_map[ENV_POINT_CLOUD] = POINT_CLOUD_KEY
         self.scene_transform_kwargs()  # validate early
+        self.point_cloud_kwargs()
 
     @property
     def camera_list(self) -> list[str]:
@@ -126,6 +150,21 @@ class ActionFlowEnvConfig(EnvConfig):
         _envs.SceneTransform(**kw, move_robot=self.scene_move_robot)  # ValueError when out of range
         return {**kw, "move_robot": self.scene_move_robot}
 
+    def point_cloud_kwargs(self) -> dict | bool:
+        """The point-cloud settings as gym kwargs (``False`` without a point cloud)."""
+        if not self.point_cloud:
+            return False
+        kw = {
+            "num_points": int(self.point_cloud_points),
+            "cameras": tuple(c.strip() for c in self.point_cloud_cameras.split(",") if c.strip()) or None,
+            "image_height": int(self.point_cloud_image_size),
+            "image_width": int(self.point_cloud_image_size),
+            "box_low": None if self.point_cloud_box_low is None else tuple(self.point_cloud_box_low),
+            "box_high": None if self.point_cloud_box_high is None else tuple(self.point_cloud_box_high),
+        }
+        _envs.PointCloudConfig(**kw)  # ValueError naming the bad setting
+        return kw
+
     @property
     def gym_kwargs(self) -> dict:
         return {
@@ -138,6 +177,7 @@ class ActionFlowEnvConfig(EnvConfig):
             "render_width": self.visualization_width,
             "scene_transform": self.scene_transform_kwargs(),
             "terminate_on_success": self.terminate_on_success,
+            "point_cloud": self.point_cloud_kwargs(),
             "max_episode_steps": self.episode_length,
             # LeRobot's async workers each build one env: nothing would reuse MuJoCo's asset cache.
             "asset_cache": False,

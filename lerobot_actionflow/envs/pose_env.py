@@ -16,6 +16,9 @@ robosuite's observations.
 - ``ENV_PIXELS`` (only with ``cameras``): ``{camera: uint8 (H, W, 3)}``, cameras ``"wrist"``
   (robosuite's ``robot0_eye_in_hand``), ``"agentview"`` or any other camera of the model
   (:mod:`lerobot_actionflow.envs.rendering`; a frame costs more than a physics step without a GPU).
+- ``ENV_POINT_CLOUD`` (only with ``point_cloud``): float32 ``(M, 3)``, points in metres in the
+  same world frame, fused from two or more depth cameras, cropped to a workspace box, robot
+  and table removed, farthest-point sampled (:mod:`lerobot_actionflow.envs.point_cloud`).
 
 Action ``(ACTION_DIM,)``: ``[x, y, z, rot6d, gripper]``, the absolute EEF target pose9 in the
 world frame, gripper in ``[-1, 1]`` (-1 open, +1 closed; values outside are clipped). The
@@ -50,6 +53,8 @@ import numpy as np
 
 from lerobot_actionflow.envs.arm_ik import ArmIK
 from lerobot_actionflow.envs.controller import absolute_pose_controller_config
+from lerobot_actionflow.envs.point_cloud import PointCloudSensor
+from lerobot_actionflow.envs.point_cloud_config import PointCloudConfig
 from lerobot_actionflow.envs.rendering import CameraRenderer
 from lerobot_actionflow.envs.scene_mover import SceneMover
 from lerobot_actionflow.envs.scene_transform import SceneTransform
@@ -69,6 +74,7 @@ from lerobot_actionflow.schema import (
     ACTION_GRIPPER_INDEX,
     ENV_AGENT_POS,
     ENV_PIXELS,
+    ENV_POINT_CLOUD,
     ENV_POSES,
     ENV_STATE,
     GRIPPER_QPOS_DIM,
@@ -76,6 +82,7 @@ from lerobot_actionflow.schema import (
     POSE9_DIM,
     STATE_DIM,
     env_state_dim,
+    point_cloud_shape,
 )
 
 #: MuJoCo data arrays (world position, row-major rotation matrix) of each kind of token element.
@@ -109,6 +116,8 @@ class PoseTokenEnv(gym.Env):
             asset cache (about 90 MB for Lift), so the next env built in this process compiles
             faster (about 0.3 s instead of 1.5 s). ``False`` empties the cache after building:
             for a process that builds one env, such as a ``lerobot-eval`` worker.
+        point_cloud: ``True`` (default settings), a :class:`PointCloudConfig` or a dict of its
+            fields, to add ``observation["point_cloud"]``; ``False`` for none.
     """
 
     metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": CONTROL_FREQ}
@@ -126,6 +135,7 @@ class PoseTokenEnv(gym.Env):
         scene_transform: SceneTransform | dict | None = None,
         terminate_on_success: bool = True,
         asset_cache: bool = True,
+        point_cloud: bool | dict | PointCloudConfig = False,
     ):
         super().__init__()
         if render_mode not in (None, "rgb_array"):
@@ -161,6 +171,17 @@ class PoseTokenEnv(gym.Env):
         self._renderer = CameraRenderer(self._model, self._data, self.task)
         for cam in (*self.cameras, self.render_camera):
             self._renderer.camera_id(cam)  # fail early on an unknown camera
+        pc_config = PointCloudConfig.coerce(point_cloud)
+        self._point_cloud = None
+        if pc_config is not None:
+            removed = (
+                *(r.robot_model.root_body for r in self._env.robots),
+                *self.spec_task.point_cloud_removed,
+            )
+            self._point_cloud = PointCloudSensor(
+                self._env.sim, self._renderer, pc_config, self._ws_low, self._ws_high, removed,
+                self.spec_task.point_cloud_cameras,
+            )  # fmt: skip
 
         n = self.spec_task.num_tokens
         obs_spaces: dict[str, gym.Space] = {
@@ -172,6 +193,9 @@ class PoseTokenEnv(gym.Env):
             obs_spaces[ENV_PIXELS] = gym.spaces.Dict(
                 {c: gym.spaces.Box(0, 255, (*self.image_size, 3), np.uint8) for c in self.cameras}
             )
+        if self._point_cloud is not None:
+            shape = point_cloud_shape(self._point_cloud.num_points)
+            obs_spaces[ENV_POINT_CLOUD] = gym.spaces.Box(-np.inf, np.inf, shape, np.float32)
         self.observation_space = gym.spaces.Dict(obs_spaces)
         low = np.concatenate([self._ws_low, -np.ones(ACTION_DIM - 3)]).astype(np.float32)
         high = np.concatenate([self._ws_high, np.ones(ACTION_DIM - 3)]).astype(np.float32)
@@ -309,6 +333,8 @@ class PoseTokenEnv(gym.Env):
         }
         if self.cameras:
             obs[ENV_PIXELS] = {c: self.render_camera_image(c, *self.image_size) for c in self.cameras}
+        if self._point_cloud is not None:
+            obs[ENV_POINT_CLOUD] = self._point_cloud()
         return obs
 
     # ------------------------------------------------------------------ state access
@@ -316,6 +342,11 @@ class PoseTokenEnv(gym.Env):
     def robosuite_env(self):
         """The wrapped robosuite environment (for experts, data conversion and tests)."""
         return self._env
+
+    @property
+    def point_cloud_sensor(self) -> PointCloudSensor | None:
+        """The point-cloud sensor (``None`` without ``point_cloud``)."""
+        return self._point_cloud
 
     def is_success(self) -> bool:
         """The task's success check on the current simulator state."""

@@ -5,7 +5,8 @@
 0 and visual geoms in group 1), no multisample anti-aliasing (it doubles the cost of a frame on
 a CPU, software-EGL renderer for a barely visible difference at these sizes). Without a GPU a
 frame costs tens of milliseconds, more than a physics step. One ``mujoco.Renderer`` (one GL
-context) is kept per image size and made on first use.
+context) is kept per image size and made on first use; the same renderer also draws metric depth
+and per-pixel geom ids (:meth:`CameraRenderer.render_depth_and_geoms`, for point clouds).
 
 GL contexts must be freed before MuJoCo terminates its EGL display at exit. MuJoCo registers
 that ``atexit`` hook when its GL module is first imported, i.e. by the first renderer; ours is
@@ -47,6 +48,10 @@ class CameraRenderer:
         model.vis.quality.offsamples = 0
         self._scene_option = mujoco.MjvOption()
         self._scene_option.geomgroup[0] = 0  # hide the collision geoms
+        # Geometry passes (depth, segmentation): no sites either, they are markers, not surfaces.
+        self._geometry_option = mujoco.MjvOption()
+        self._geometry_option.geomgroup[0] = 0
+        self._geometry_option.sitegroup[:] = 0
 
     def camera_id(self, camera: str) -> int:
         """Id of a camera given by alias (``"wrist"``, ``"agentview"``) or by its model name.
@@ -61,8 +66,7 @@ class CameraRenderer:
             raise ValueError(f"task {self._owner} has no camera {camera!r}; known: {known} and 'wrist'")
         return cid
 
-    def render(self, camera: str, height: int, width: int) -> np.ndarray:
-        """RGB ``uint8 (height, width, 3)`` from ``camera`` (alias or model name)."""
+    def _renderer(self, height: int, width: int) -> mujoco.Renderer:
         key = (height, width)
         renderer = self._renderers.get(key)
         if renderer is None:
@@ -72,8 +76,30 @@ class CameraRenderer:
             _LIVE.add(self)
             if not _EXIT_HOOK:
                 _EXIT_HOOK.append(atexit.register(_close_all_at_exit))
+        return renderer
+
+    def render(self, camera: str, height: int, width: int) -> np.ndarray:
+        """RGB ``uint8 (height, width, 3)`` from ``camera`` (alias or model name)."""
+        renderer = self._renderer(height, width)
         renderer.update_scene(self._data, camera=self.camera_id(camera), scene_option=self._scene_option)
         return renderer.render()
+
+    def render_depth_and_geoms(self, camera: str, height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
+        """Metric planar depth ``float32 (height, width)`` (metres along the camera axis) and the
+        geom id of each pixel ``int32 (height, width)`` (``-1``: background or no geom), from one
+        scene update, row 0 at the top of the image (``mujoco.Renderer`` flips OpenGL's
+        bottom-up rows and linearises its depth buffer)."""
+        renderer = self._renderer(height, width)
+        renderer.update_scene(self._data, camera=self.camera_id(camera), scene_option=self._geometry_option)
+        try:
+            renderer.enable_depth_rendering()
+            depth = renderer.render()
+            renderer.enable_segmentation_rendering()
+            seg = renderer.render()
+        finally:
+            renderer.disable_segmentation_rendering()
+        geoms = np.where(seg[..., 1] == mujoco.mjtObj.mjOBJ_GEOM, seg[..., 0], -1).astype(np.int32)
+        return depth, geoms
 
     def close(self) -> None:
         """Release the GL contexts (made again on the next :meth:`render`)."""

@@ -58,6 +58,14 @@ CAN = register_task(
         workspace_high=(0.40, 0.55, 1.40),
         # The target bin is part of the arena and robosuite's check uses its fixed position.
         scene_transform=False,
+        # The bins arena has no side camera and no table: the bins are the support surfaces, and
+        # the target bin's cell markers are visual-only bodies (no real sensor would see them).
+        point_cloud_cameras=("agentview", "birdview"),
+        point_cloud_removed=(
+            "bin1",
+            "bin2",
+            *(f"Visual{o}_main" for o in ("Bread", "Can", "Cereal", "Milk")),
+        ),
     )
 )
 

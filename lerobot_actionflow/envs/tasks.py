@@ -76,6 +76,10 @@ class TaskSpec:
             :mod:`lerobot_actionflow.envs.scene_transform`); ``False`` where fixed parts of the
             arena (e.g. bins) define the goal.
         variant: placement-distribution variant (``"D0"``, ``"D1"``, ...) or ``""``.
+        point_cloud_cameras: the depth cameras the point-cloud observation fuses by default
+            (:mod:`lerobot_actionflow.envs.point_cloud`).
+        point_cloud_removed: bodies whose subtrees are removed from point clouds, besides the
+            robot: the arena's support surfaces (the table; Can's bins) and visual-only markers.
     """
 
     name: str
@@ -91,6 +95,8 @@ class TaskSpec:
     pivot_xy: tuple[float, float] = (0.0, 0.0)
     scene_transform: bool = True
     variant: str = ""
+    point_cloud_cameras: tuple[str, ...] = ("agentview", "sideview")
+    point_cloud_removed: tuple[str, ...] = ("table",)
 
     @property
     def num_tokens(self) -> int:

@@ -14,6 +14,7 @@ Dataset and policy features, and the env observation keys they come from (LeRobo
 | ``observation.state``             | ``agent_pos``        | float32 | ``(11,)``               |
 | ``observation.environment_state`` | ``environment_state``| float32 | ``(9 (N - 1),)``        |
 | ``observation.images.<camera>``   | ``pixels/<camera>``  | uint8   | ``(H, W, 3)`` in the env|
+| ``observation.point_cloud``       | ``point_cloud``      | float32 | ``(M, 3)`` (optional)   |
 | ``action``                        | (the env's action)   | float32 | ``(10,)``               |
 
 * ``pose7`` = ``[x, y, z, qw, qx, qy, qz]`` (scalar-first quaternion, ``qw >= 0``), in the robot
@@ -24,6 +25,9 @@ Dataset and policy features, and the env observation keys they come from (LeRobo
 * ``observation.state`` = ``[eef pose9 (9), gripper finger qpos (2)]``.
 * ``observation.environment_state`` = the object poses (rows 1.. of ``observation.poses``) as
   ``pose9``, concatenated.
+* ``observation.point_cloud`` = ``M`` points ``[x, y, z]`` in metres, in the same robot
+  base/world frame as the poses, in farthest-point-sampling order; stored in a dataset as
+  float16 or float32 (:data:`POINT_CLOUD_DTYPES`), read back as float32.
 * ``action`` = ``[absolute EEF target pose9 (9), gripper]``, gripper in ``[-1, 1]`` (-1 open,
   +1 closed).
 """
@@ -35,6 +39,7 @@ POSES_KEY = "observation.poses"
 STATE_KEY = "observation.state"
 ENV_STATE_KEY = "observation.environment_state"
 IMAGES_PREFIX = "observation.images."
+POINT_CLOUD_KEY = "observation.point_cloud"
 ACTION_KEY = "action"
 
 # -- env observation keys (raw Gymnasium dict), and the camera images' sub-dict
@@ -42,6 +47,7 @@ ENV_POSES = "poses"
 ENV_AGENT_POS = "agent_pos"
 ENV_STATE = "environment_state"
 ENV_PIXELS = "pixels"
+ENV_POINT_CLOUD = "point_cloud"
 #: Env observation key -> dataset / policy key (images: ``pixels/<cam>`` -> ``IMAGES_PREFIX + cam``).
 ENV_TO_DATASET_KEY = {ENV_POSES: POSES_KEY, ENV_AGENT_POS: STATE_KEY, ENV_STATE: ENV_STATE_KEY}
 
@@ -56,6 +62,12 @@ ACTION_DIM = POSE9_DIM + 1
 STATE_GRIPPER_INDICES = tuple(range(POSE9_DIM, STATE_DIM))
 #: Index of the gripper command in ``action``.
 ACTION_GRIPPER_INDEX = POSE9_DIM
+#: Coordinates of a point, and the default number of points ``M`` of a point cloud.
+POINT_DIM = 3
+DEFAULT_POINT_CLOUD_POINTS = 512
+#: Dataset dtypes a point cloud may be stored as (float16: half the bytes, at most 0.5 mm of
+#: rounding for coordinates below 2 m).
+POINT_CLOUD_DTYPES = ("float16", "float32")
 
 
 def image_key(camera: str) -> str:
@@ -71,6 +83,11 @@ def env_pixels_key(camera: str) -> str:
 def env_state_dim(num_tokens: int) -> int:
     """Width of ``observation.environment_state`` for ``num_tokens`` poses (EEF included)."""
     return POSE9_DIM * (num_tokens - 1)
+
+
+def point_cloud_shape(num_points: int) -> tuple[int, int]:
+    """Shape ``(M, 3)`` of ``observation.point_cloud`` with ``num_points`` = M points."""
+    return (int(num_points), POINT_DIM)
 
 
 def feature_shapes(num_tokens: int) -> dict[str, tuple[int, ...]]:
