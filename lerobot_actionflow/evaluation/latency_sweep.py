@@ -90,8 +90,8 @@ def _evaluate_checkpoint(cfg: LatencySweepConfig, checkpoint: str, on_row: Calla
     from lerobot.envs.factory import make_env_pre_post_processors
     from lerobot.policies.factory import make_policy, make_pre_post_processors
 
-    from lerobot_actionflow.envs.latency_hold import make_latency_envs
     from lerobot_actionflow.evaluation.latency import configure_execution, evaluate_with_latency
+    from lerobot_actionflow.evaluation.latency_hold import make_latency_envs
     from lerobot_actionflow.evaluation.sweep import set_inference_steps
 
     policy_cfg = PreTrainedConfig.from_pretrained(checkpoint)

@@ -158,7 +158,7 @@ def test_crash_at_each_rename_of_the_commit_is_recovered(lift_copy, monkeypatch,
     monkeypatch.undo()
     assert root.exists() == (crash_at != 2)
     st.recover(_target_meta)  # what the rerun does first
-    now = _check_target(root, REPO_ID, get_task("Lift"), (), 0, features)
+    now = _check_target(root, REPO_ID, get_task("Lift"), (), 0, features, None)
     st.commit(meta, now, features, 20, False)
     out = load(root)
     assert out.num_episodes == 3

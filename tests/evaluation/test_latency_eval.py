@@ -12,8 +12,8 @@ from lerobot.policies.factory import make_policy, make_pre_post_processors
 from lerobot.scripts.lerobot_eval import rollout
 
 from lerobot_actionflow.envs.configuration import ActionFlowEnvConfig
-from lerobot_actionflow.envs.latency_hold import make_latency_envs
 from lerobot_actionflow.evaluation.latency import ChunkLatency
+from lerobot_actionflow.evaluation.latency_hold import make_latency_envs
 from lerobot_actionflow.evaluation.latency_sweep import LatencySweepConfig, run_latency_sweep
 from lerobot_actionflow.evaluation.untrained import save_untrained_actionflow
 
@@ -83,7 +83,7 @@ def test_latency_sweep_writes_every_cell(checkpoint, tmp_path):
 def test_the_held_target_at_an_episodes_start_keeps_the_arm_still():
     import gymnasium as gym
 
-    from lerobot_actionflow.envs.latency_hold import idle_target
+    from lerobot_actionflow.evaluation.latency_hold import idle_target
     from lerobot_actionflow.rotations import geodesic_distance
 
     env = gym.make("lerobot_actionflow/Lift-v0", max_episode_steps=STEPS)

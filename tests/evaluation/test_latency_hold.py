@@ -14,8 +14,8 @@ import pytest
 import torch
 from gymnasium.vector import AutoresetMode
 
-from lerobot_actionflow.envs.latency_hold import LatencyHoldWrapper
 from lerobot_actionflow.evaluation.latency import ChunkLatency, Scheme, configure_execution, hold_steps
+from lerobot_actionflow.evaluation.latency_hold import LatencyHoldWrapper
 from lerobot_actionflow.policies.execution import ExecutionOptions, execution_window
 from lerobot_actionflow.schema import ACTION_DIM, ACTION_KEY, ENV_AGENT_POS, STATE_DIM
 
