@@ -18,8 +18,16 @@ see flow time, so they are encoded once per chunk and cached (``encode_observati
 action tokens, conditioned on ``t``, attend to that cache and to each other at every step
 (``velocity``). Each action token reads out its local translation velocity ``v_p``, rotation
 velocity ``v_r`` and gripper velocity ``v_g``.
-Velocities are in the action token's own frame; ``v_p`` is returned in metres per unit time
-(the network's output divided by ``translation_scale``).
+Velocities are returned in the action token's own frame (what the SE(3) Euler step takes), ``v_p``
+in metres per unit time (the network's output divided by ``translation_scale``). The head's
+translation output ``u`` is read in one of two frames (``translation_frame``):
+
+* ``"pose"``: the token's own frame, ``v_p = u`` (App. C). The regression target
+  ``r_t^T (p_1 - p_0)`` then turns with the rotation noise along the path.
+* ``"eef"``: the reference (EEF) frame, ``v_p = r_t^T R_e u``. The target ``R_e^T (p_1 - p_0)`` is
+  constant along the path, and the loss ``|v_p - r_t^T (p_1 - p_0)|`` equals
+  ``|u - R_e^T (p_1 - p_0)|`` because ``r_t`` is a rotation. ``R_e`` moves with the scene, so the
+  sampled poses stay equivariant.
 """
 
 from __future__ import annotations
@@ -34,6 +42,9 @@ from lerobot_actionflow.nn.embeddings import SinusoidalTimeEmbedding
 from lerobot_actionflow.nn.ipa import DEFAULT_IPA_SIZE, IPASize
 from lerobot_actionflow.nn.pose_adaptation import PoseAdaptation
 from lerobot_actionflow.nn.se3_transformer import SE3InvariantTransformer
+
+#: Frames the head's translation velocity can be read in; see the module docstring.
+TRANSLATION_FRAMES = ("pose", "eef")
 
 
 @dataclass
@@ -82,8 +93,14 @@ class ActionFlowNetwork(nn.Module):
         mlp_ratio: float = 2.0,
         dropout: float = 0.0,
         adaptation: PoseAdaptation | None = None,
+        translation_frame: str = "pose",
     ):
         super().__init__()
+        if translation_frame not in TRANSLATION_FRAMES:
+            raise ValueError(
+                f"translation_frame must be one of {TRANSLATION_FRAMES}, got {translation_frame!r}"
+            )
+        self.translation_frame = translation_frame
         dim = size.dim
         self.num_entities, self.n_obs_steps, self.horizon = num_entities, n_obs_steps, horizon
         self.num_scalars = num_scalars
@@ -161,7 +178,11 @@ class ActionFlowNetwork(nn.Module):
             f, r_a, p_a - encoded.center, None, encoded.context, shifts=shifts
         )
         v = self.head(out)
-        return PoseVelocity(r=v[..., 3:6], p=v[..., :3] / self.adaptation.translation_scale, g=v[..., 6])
+        v_p = v[..., :3] / self.adaptation.translation_scale
+        if self.translation_frame == "eef":  # v_p = r^T R_e u
+            to_pose = x.r.transpose(-1, -2) @ encoded.r_ref[:, None]
+            v_p = (to_pose @ v_p[..., None]).squeeze(-1)
+        return PoseVelocity(r=v[..., 3:6], p=v_p, g=v[..., 6])
 
     def forward(self, obs: ObservationTokens, x: PoseChunk, t: torch.Tensor) -> PoseVelocity:
         """One evaluation ``v_theta``; see :meth:`velocity`."""

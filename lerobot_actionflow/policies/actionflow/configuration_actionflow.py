@@ -9,6 +9,7 @@ from lerobot.configs.types import FeatureType, NormalizationMode
 from lerobot.optim.optimizers import AdamWConfig
 from lerobot.optim.schedulers import CosineAnnealingWithWarmupSchedulerConfig
 
+from lerobot_actionflow.nn.actionflow_network import TRANSLATION_FRAMES
 from lerobot_actionflow.policies.config_errors import (
     require,
     require_choice,
@@ -64,6 +65,10 @@ class ActionflowConfig(PreTrainedConfig):
         dim, num_layers [4], num_heads, head_dim, num_query_points, num_value_points,
             mlp_ratio, dropout: the SE(3)-invariant transformer.
         adaptation_frame, translation_scale [10], squash_translations [tanh]: App. F.2.
+        translation_velocity_frame: the frame of the network's translation velocity: ``"pose"``
+            [App. C], the body frame of the current action pose, or ``"eef"``, the EEF frame of
+            the latest observation, in which the regression target is constant along the path
+            (:mod:`lerobot_actionflow.nn.actionflow_network`). Both are exactly equivariant.
         noise_sigma: std of the initial translation noise around the EEF (metres).
         noise_rotation: ``"uniform"`` or ``"concentrated"`` (around the EEF orientation,
             ``Exp(noise_kappa * eps)``).
@@ -125,6 +130,7 @@ class ActionflowConfig(PreTrainedConfig):
     adaptation_frame: str = "eef"
     translation_scale: float = 10.0
     squash_translations: bool = True
+    translation_velocity_frame: str = "pose"
 
     noise_sigma: float = 0.1
     noise_rotation: str = "uniform"
@@ -185,6 +191,7 @@ class ActionflowConfig(PreTrainedConfig):
             "`squash_translations` needs adaptation_frame='eef': tanh squashing of world-frame "
             "translations would break equivariance",
         )
+        require_choice(self, "translation_velocity_frame", TRANSLATION_FRAMES)
         require_choice(self, "noise_rotation", ("uniform", "concentrated"))
         require_positive(self, ("noise_kappa",))
         require_ints(self, ("num_inference_steps",))

@@ -81,6 +81,7 @@ class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
             adaptation=PoseAdaptation(
                 config.adaptation_frame, config.translation_scale, config.squash_translations
             ),
+            translation_frame=config.translation_velocity_frame,
         )
         #: Per-step shape of every observation feature the policy reads.
         self._observation_shapes = {POSES_KEY: tuple(config.poses_feature.shape)}

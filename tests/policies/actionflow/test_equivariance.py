@@ -84,15 +84,66 @@ def _equivariance_error(pose, pose_t, r_d, p_d):
     return max(err_r.item(), err_p.item(), (gr_t - gr).abs().max().item())
 
 
-@pytest.mark.parametrize("frame", ["eef", "world"])
-def test_sampled_actions_are_equivariant(frame):
-    policy = _policy(torch.float32, adaptation_frame=frame, squash_translations=frame == "eef")
+@pytest.mark.parametrize(
+    ("frame", "velocity_frame"), [("eef", "pose"), ("world", "pose"), ("eef", "eef"), ("world", "eef")]
+)
+def test_sampled_actions_are_equivariant(frame, velocity_frame):
+    policy = _policy(
+        torch.float32,
+        adaptation_frame=frame,
+        squash_translations=frame == "eef",
+        translation_velocity_frame=velocity_frame,
+    )
     gen = torch.Generator().manual_seed(3)
     batch = random_batch(policy.config, 4, gen)
     noise = se3_flow.draw_local_noise(4, policy.config.horizon, 0.1, generator=gen)
     r_d, p_d = _random_transform(gen, torch.float32)
     pose, pose_t = _sample_twice(policy, batch, noise, r_d, p_d)
     assert _equivariance_error(pose, pose_t, r_d, p_d) <= 1e-4
+
+
+def test_eef_velocity_frame_reads_the_head_in_the_eef_frame():
+    """With ``translation_velocity_frame='eef'`` the same weights give ``v_p = r^T R_e u``, where
+    ``u`` is what the ``'pose'`` network returns; the rotation and gripper channels are unchanged."""
+    gen = torch.Generator().manual_seed(6)
+    pose_policy = _policy(torch.float64)
+    eef_policy = _policy(torch.float64, translation_velocity_frame="eef")
+    eef_policy.load_state_dict(pose_policy.state_dict())
+    batch = random_batch(pose_policy.config, 3, gen, torch.float64)
+    t = torch.rand(3, generator=gen, dtype=torch.float64)
+    with torch.no_grad():
+        u = _velocities(pose_policy, batch, t)
+        v = _velocities(eef_policy, batch, t)
+    r_a = action_to_pose(batch["action"])[0]
+    r_e = g.se3.pose7_to_rp(batch["observation.poses"])[0][:, -1, 0]
+    expected = (r_a.transpose(-1, -2) @ r_e[:, None] @ u.p[..., None]).squeeze(-1)
+    torch.testing.assert_close(v.p, expected, rtol=0, atol=1e-12)
+    torch.testing.assert_close(v.r, u.r, rtol=0, atol=0)
+    assert (v.p - u.p).abs().max() > 1e-3  # control: the two frames differ
+
+
+def test_eef_frame_translation_target_is_constant_along_the_path():
+    """The reason for ``'eef'``: ``R_e^T (p_1 - p_0)`` does not depend on ``t``, while the
+    pose-frame target ``r_t^T (p_1 - p_0)`` turns with the rotation noise (control)."""
+    gen = torch.Generator().manual_seed(7)
+    b, h = 2, 5
+    r_e = g.random_rotation(b, generator=gen, dtype=torch.float64)
+    p_e = torch.randn(b, 3, generator=gen, dtype=torch.float64)
+    noise = se3_flow.draw_local_noise(b, h, 0.1, generator=gen, dtype=torch.float64)
+    x0 = se3_flow.noise_to_world(noise, r_e, p_e)
+    x1 = se3_flow.PoseChunk(
+        g.random_rotation(b, h, generator=gen, dtype=torch.float64),
+        torch.randn(b, h, 3, generator=gen, dtype=torch.float64),
+        torch.zeros(b, h, dtype=torch.float64),
+    )
+    in_eef, in_pose = [], []
+    for t in (0.1, 0.5, 0.9):
+        x_t, u_t = se3_flow.geodesic_path(x0, x1, torch.full((b,), t, dtype=torch.float64))
+        world = (x_t.r @ u_t.p[..., None]).squeeze(-1)
+        in_eef.append((r_e.transpose(-1, -2)[:, None] @ world[..., None]).squeeze(-1))
+        in_pose.append(u_t.p)
+    torch.testing.assert_close(in_eef[0], in_eef[2], rtol=0, atol=1e-12)
+    assert (in_pose[0] - in_pose[2]).abs().max() > 1e-2
 
 
 def test_equivariance_check_fails_with_world_frame_noise():
