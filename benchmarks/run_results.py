@@ -18,6 +18,18 @@ configuration measured on a 2-core CPU (see benchmarks/RESULTS.md); ``--preset p
 each policy's default size for a GPU.
 
     python benchmarks/run_results.py --task Lift --output outputs/results/Lift
+
+**Studies with several training seeds** (issue #17; :mod:`study` holds the settings, the cell
+store and the summaries): ``--study ablation`` (ActionFlow's defaults) or ``--study comparison``
+(actionflow, euclidean_flow, diffusion) trains every chosen setting with every seed in
+``--seeds``, saving a checkpoint every ``--eval-every`` steps, and evaluates the checkpoints
+(all of them, or the last with ``--eval-checkpoints last``) on the task and ``--variants``, at
+every IS of ``--inference-steps`` and every grid of ``--time-spacings``. Each evaluation is one
+cell of ``--results`` (default ``benchmarks/results/<task>.json``), written as it finishes; a
+rerun skips the cells and the training runs that exist. Prints mean +- std over seeds.
+
+    python benchmarks/run_results.py --task Lift --study ablation --settings default,squash_off \
+        --seeds 0,1,2 --steps 3000 --eval-every 1000 --inference-steps 2,10 --output /work/study/Lift
 """
 
 from __future__ import annotations
@@ -30,22 +42,12 @@ import sys
 import time
 from pathlib import Path
 
+from study import COMMON, CPU_SIZE, PAPER_SIZE, STUDIES, CellKey, ResultStore, format_summary, summarise
+
 from lerobot_actionflow.demo import train_command
 
 POLICIES = ("actionflow", "euclidean_flow", "diffusion")
-COMMON = ["--policy.n_obs_steps=2", "--policy.horizon=16", "--policy.n_action_steps=8"]
-# Small models that train in minutes on a CPU; the widths are the policies' own knobs.
-CPU_SIZE = {
-    "actionflow": [
-        "--policy.dim=64",
-        "--policy.num_layers=2",
-        "--policy.num_heads=4",
-        "--policy.head_dim=16",
-    ],
-    "euclidean_flow": ["--policy.backbone=unet", "--policy.down_dims=[64,128,256]"],
-    "diffusion": ["--policy.down_dims=[64,128,256]"],
-}
-PAPER_SIZE = {"actionflow": [], "euclidean_flow": ["--policy.backbone=unet"], "diffusion": []}
+REPO = Path(__file__).resolve().parents[1]
 # Scene transforms of the generalisation table: name -> env overrides.
 SCENES = {
     "shift+yaw, objects only": [
@@ -91,6 +93,109 @@ def _sweep(
     return json.loads(result.read_text())
 
 
+def _train(run: Path, policy: str, overrides: list[str], seed: int, save_freq: int, data, repo_id, args, env):
+    """Train one run into ``run`` unless its final checkpoint exists (an unfinished run is
+    started over); returns its wall time in seconds, or None when it was already there."""
+    if (run / "checkpoints" / "last" / "pretrained_model").exists():
+        return None
+    if run.exists():
+        import shutil
+
+        shutil.rmtree(run)  # a run interrupted before its last checkpoint
+    sizes = CPU_SIZE if args.preset == "cpu" else PAPER_SIZE
+    start = time.perf_counter()
+    _run(
+        [*train_command(), f"--policy.type={policy}", f"--policy.device={args.device}",
+         "--policy.push_to_hub=false", f"--dataset.repo_id={repo_id}", f"--dataset.root={data}",
+         f"--output_dir={run}", f"--steps={args.steps}", f"--save_freq={save_freq}",
+         f"--batch_size={args.batch_size}", "--num_workers=0", "--log_freq=100",
+         "--wandb.enable=false", f"--seed={seed}", f"--policy.optimizer_lr={args.lr}",
+         "--policy.scheduler_warmup_steps=100", *COMMON, *sizes[policy], *overrides],
+        env, run.parent / f"train_{run.name}.log",
+    )  # fmt: skip
+    wall = time.perf_counter() - start
+    (run / "train_wall_s.json").write_text(json.dumps({"train_wall_s": wall}))
+    return wall
+
+
+def _checkpoints(run: Path) -> dict[int, Path]:
+    """``{step: pretrained_model dir}`` of a training run's numbered checkpoints."""
+    found = {}
+    for d in (run / "checkpoints").iterdir():
+        if d.name.isdigit() and (d / "pretrained_model").exists():
+            found[int(d.name)] = d / "pretrained_model"
+    return found
+
+
+def run_study(args, env: dict, data: Path, repo_id: str) -> int:
+    """Train and evaluate the settings of ``args.study`` (see the module docstring)."""
+    settings = STUDIES[args.study]
+    names = [n for n in args.settings.split(",") if n] or list(settings)
+    unknown = sorted(set(names) - set(settings))
+    if unknown:
+        raise SystemExit(f"unknown {args.study} settings {unknown}; known: {sorted(settings)}")
+    seeds = [int(s) for s in args.seeds.split(",")]
+    steps = [int(k) for k in args.inference_steps.split(",")]
+    spacings = [s for s in args.time_spacings.split(",") if s]
+    eval_tasks = [args.task, *[v for v in args.variants.split(",") if v]]
+    store = ResultStore(args.results or REPO / "benchmarks" / "results" / f"{args.task}.json", args.task)
+    out = args.output.resolve()
+    for name in names:
+        setting = settings[name]
+        for seed in seeds:
+            run = out / args.study / name / f"seed{seed}"
+            overrides = list(setting.overrides)
+            _train(run, setting.policy, overrides, seed, args.eval_every, data, repo_id, args, env)
+            info = run / "train_wall_s.json"
+            train_wall = json.loads(info.read_text())["train_wall_s"] if info.exists() else None
+            ckpts = _checkpoints(run)
+            chosen = sorted(ckpts) if args.eval_checkpoints == "all" else [max(ckpts)]
+            for step in chosen:
+                for eval_task in eval_tasks:
+                    for spacing in spacings:
+                        if spacing != "checkpoint" and setting.policy == "diffusion":
+                            continue
+                        todo = [
+                            k for k in steps
+                            if CellKey(args.study, name, seed, step, eval_task, k, spacing,
+                                       args.eval_episodes, args.eval_seed) not in store
+                        ]  # fmt: skip
+                        if not todo:
+                            continue
+                        where = out / "eval" / args.study / name / f"seed{seed}" / f"step{step}"
+                        where = where / eval_task / spacing
+                        if where.exists():
+                            import shutil
+
+                            shutil.rmtree(where)  # an evaluation that did not finish
+                        extra = [] if spacing == "checkpoint" else [f"--time_spacing={spacing}"]
+                        for row in _sweep([ckpts[step]], eval_task, todo, extra, where, args, env):
+                            store.add(
+                                {
+                                    "study": args.study, "setting": name, "policy": setting.policy,
+                                    "overrides": list(setting.overrides), "seed": seed, "step": step,
+                                    "eval_task": eval_task, "inference_steps": row["inference_steps"],
+                                    "time_spacing": spacing, "sampler": row["sampler"],
+                                    "n_episodes": row["n_episodes"], "eval_seed": args.eval_seed,
+                                    "pc_success": row["pc_success"], "eval_s": row["eval_s"],
+                                    "train_steps": args.steps, "batch_size": args.batch_size, "lr": args.lr,
+                                    "preset": args.preset, "train_wall_s": train_wall,
+                                    "demos": args.episodes,
+                                    "episode_length": args.episode_length,
+                                    "date": time.strftime("%Y-%m-%d", time.gmtime()),
+                                }
+                            )  # fmt: skip
+    cells = list(store.cells.values())
+    for eval_task in eval_tasks:
+        for spacing in spacings:
+            rows = summarise(cells, args.study, eval_task, spacing)
+            if rows:
+                print(f"\n{args.study} on {eval_task} (time grid: {spacing}); mean +- std over seeds "
+                      "(seeds; checkpoint step)")  # fmt: skip
+                print(format_summary(rows))
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--task", default="Lift")
@@ -116,6 +221,18 @@ def main(argv: list[str] | None = None) -> int:
         "--episode-length", type=int, default=None, help="evaluation episode cap (default: the task's)"
     )
     ap.add_argument("--plot", type=Path, default=None, help="write the IS sweep as a PNG here")
+    study = ap.add_argument_group("studies with several seeds (issue #17)")
+    study.add_argument("--study", choices=sorted(STUDIES), default=None)
+    study.add_argument("--settings", default="", help="comma-separated setting names (default: all)")
+    study.add_argument("--seeds", default="0,1,2", help="training seeds")
+    study.add_argument("--eval-every", type=int, default=1000, help="checkpoint interval (steps)")
+    study.add_argument("--eval-checkpoints", choices=("all", "last"), default="all")
+    study.add_argument(
+        "--time-spacings", default="checkpoint", help="time grids to evaluate: checkpoint,uniform,exponential"
+    )
+    study.add_argument(
+        "--results", type=Path, default=None, help="cell store (default benchmarks/results/<task>.json)"
+    )
     args = ap.parse_args(argv)
 
     out = args.output.resolve()
@@ -132,6 +249,9 @@ def main(argv: list[str] | None = None) -> int:
             env, out / "logs" / "collect.log",
         )  # fmt: skip
         timings["collect_s"] = time.perf_counter() - start
+
+    if args.study is not None:
+        return run_study(args, env, data, repo_id)
 
     sizes = CPU_SIZE if args.preset == "cpu" else PAPER_SIZE
     checkpoints = []

@@ -1,0 +1,232 @@
+"""The learning study of issue #17: ablations of ActionFlow's defaults and the converged comparison,
+several training seeds per setting, every evaluated cell kept in one JSON per task.
+
+A **setting** is a policy type plus ``lerobot-train`` overrides on top of the shared protocol
+(:data:`COMMON`, the CPU sizes of :data:`CPU_SIZE`). A **run** is one setting trained with one
+seed; it saves a checkpoint every ``eval_every`` steps. A **cell** is one evaluation: a run's
+checkpoint at one step, on one evaluation task, at one number of inference steps (IS) and time
+grid, over ``n_episodes`` episodes from env seed ``eval_seed`` on. Cells are the unit of resumption:
+:class:`ResultStore` writes the task's JSON after every evaluation (write to a temporary file,
+then rename), and a cell already in it is never evaluated again.
+
+Summaries (:func:`summarise`) average a setting's cells over its training seeds and give
+``mean +- std`` (population std over seeds; ``n`` = number of seeds), for the last checkpoint
+and for the best evaluated one (the checkpoint step with the highest mean over seeds).
+"""
+
+from __future__ import annotations
+
+import fcntl
+import json
+import os
+import statistics
+import tempfile
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+#: Protocol shared by every policy of the study (history, horizon, executed actions).
+COMMON = ["--policy.n_obs_steps=2", "--policy.horizon=16", "--policy.n_action_steps=8"]
+#: Small models that train in minutes on a CPU; the widths are the policies' own knobs.
+CPU_SIZE = {
+    "actionflow": [
+        "--policy.dim=64",
+        "--policy.num_layers=2",
+        "--policy.num_heads=4",
+        "--policy.head_dim=16",
+    ],
+    "euclidean_flow": ["--policy.backbone=unet", "--policy.down_dims=[64,128,256]"],
+    "diffusion": ["--policy.down_dims=[64,128,256]"],
+}
+PAPER_SIZE = {"actionflow": [], "euclidean_flow": ["--policy.backbone=unet"], "diffusion": []}
+
+
+@dataclass(frozen=True)
+class Setting:
+    """One trained configuration: ``policy`` type and its ``overrides`` (``lerobot-train`` flags,
+    after :data:`COMMON` and the size preset, so they win)."""
+
+    policy: str
+    overrides: tuple[str, ...] = ()
+    why: str = ""
+
+
+#: Ablations of ActionFlow (issue #17, part 1). The time grid and K need no retraining: they
+#: are evaluation axes of the ``default`` runs (``--time-spacings``, ``--inference-steps``).
+ABLATIONS: dict[str, Setting] = {
+    "default": Setting("actionflow", (), "the package defaults at the CPU size"),
+    "squash_off": Setting(
+        "actionflow", ("--policy.squash_translations=false",), "no tanh, translation scale 10"
+    ),
+    "scale_3": Setting("actionflow", ("--policy.translation_scale=3",), "tanh(3 d)"),
+    "scale_1": Setting("actionflow", ("--policy.translation_scale=1",), "tanh(d)"),
+    "scale_3_squash_off": Setting(
+        "actionflow",
+        ("--policy.translation_scale=3", "--policy.squash_translations=false"),
+        "3 d, no tanh",
+    ),
+    "scale_1_squash_off": Setting(
+        "actionflow",
+        ("--policy.translation_scale=1", "--policy.squash_translations=false"),
+        "d, no tanh",
+    ),
+    "velocity_eef": Setting(
+        "actionflow",
+        ("--policy.translation_velocity_frame=eef",),
+        "translation target in the EEF frame (constant along the path)",
+    ),
+    "obs_1": Setting("actionflow", ("--policy.n_obs_steps=1",), "one observation step"),
+    "size_paper": Setting(
+        "actionflow",
+        ("--policy.dim=128", "--policy.num_layers=4", "--policy.num_heads=8", "--policy.head_dim=16"),
+        "the paper's size (width 128, 4 IPA layers, 8 heads)",
+    ),
+}
+
+#: The converged comparison (issue #17, part 2): the three policies at the CPU size.
+COMPARISON: dict[str, Setting] = {
+    "actionflow": Setting("actionflow"),
+    "euclidean_flow": Setting("euclidean_flow"),
+    "diffusion": Setting("diffusion"),
+}
+
+STUDIES = {"ablation": ABLATIONS, "comparison": COMPARISON}
+
+
+@dataclass(frozen=True)
+class CellKey:
+    """What identifies an evaluation cell (see the module docstring)."""
+
+    study: str
+    setting: str
+    seed: int
+    step: int
+    eval_task: str
+    inference_steps: int
+    time_spacing: str  # "checkpoint" = the checkpoint's own grid
+    n_episodes: int
+    eval_seed: int
+
+
+def cell_key(cell: dict) -> CellKey:
+    return CellKey(**{k: cell[k] for k in CellKey.__dataclass_fields__})
+
+
+class ResultStore:
+    """The cells of one task, in ``path`` (a JSON object ``{"task": ..., "cells": [...]}``).
+
+    ``add`` re-reads the file under an exclusive lock (``<path>.lock``), merges the cell
+    (replacing one with the same :class:`CellKey`) and rewrites the file atomically (temporary
+    file, then rename). Several studies of one task can therefore run side by side, and an
+    interrupted one loses at most the evaluation in progress.
+    """
+
+    def __init__(self, path: Path, task: str):
+        self.path, self.task = Path(path), task
+        self.cells: dict[CellKey, dict] = {}
+        self._reload()
+
+    def _reload(self) -> None:
+        if not self.path.exists():
+            return
+        data = json.loads(self.path.read_text())
+        if data.get("task") != self.task:
+            raise ValueError(f"{self.path} holds results of task {data.get('task')!r}, not {self.task!r}")
+        for cell in data["cells"]:
+            self.cells[cell_key(cell)] = cell
+
+    def __contains__(self, key: CellKey) -> bool:
+        return key in self.cells
+
+    def add(self, cell: dict) -> None:
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        with open(self.path.with_name(self.path.name + ".lock"), "w") as lock:
+            fcntl.flock(lock, fcntl.LOCK_EX)
+            self._reload()
+            self.cells[cell_key(cell)] = cell
+            self._write()
+
+    def _write(self) -> None:
+        cells = sorted(self.cells.values(), key=lambda c: tuple(str(v) for v in asdict(cell_key(c)).values()))
+        fd, tmp = tempfile.mkstemp(dir=self.path.parent, prefix=f".{self.path.name}.")
+        with os.fdopen(fd, "w") as f:
+            json.dump({"task": self.task, "cells": cells}, f, indent=1)
+            f.write("\n")
+        os.replace(tmp, self.path)
+
+
+def mean_std(values: list[float]) -> tuple[float, float]:
+    """Mean and population standard deviation (0 for one value)."""
+    return statistics.fmean(values), statistics.pstdev(values) if len(values) > 1 else 0.0
+
+
+def summarise(cells: list[dict], study: str, eval_task: str, time_spacing: str = "checkpoint") -> list[dict]:
+    """Per (setting, IS): success mean +- std over seeds at the last checkpoint and at the best
+    evaluated step (highest mean over the seeds that have it), with the seeds counted."""
+    rows = []
+    chosen = [
+        c
+        for c in cells
+        if c["study"] == study and c["eval_task"] == eval_task and c["time_spacing"] == time_spacing
+    ]
+    groups: dict[tuple[str, int], list[dict]] = {}
+    for c in chosen:
+        groups.setdefault((c["setting"], c["inference_steps"]), []).append(c)
+    for (setting, k), group in groups.items():
+        by_step: dict[int, dict[int, float]] = {}
+        for c in group:
+            by_step.setdefault(c["step"], {})[c["seed"]] = c["pc_success"]
+        last_step = max(by_step)
+        best_step = max(by_step, key=lambda s: (statistics.fmean(by_step[s].values()), s))
+        last, best = list(by_step[last_step].values()), list(by_step[best_step].values())
+        rows.append(
+            {
+                "setting": setting,
+                "inference_steps": k,
+                "last_step": last_step,
+                "last": mean_std(last),
+                "last_seeds": len(last),
+                "best_step": best_step,
+                "best": mean_std(best),
+                "best_seeds": len(best),
+                "episodes": sorted({c["n_episodes"] for c in group}),
+            }
+        )
+    return sorted(rows, key=lambda r: (r["setting"], r["inference_steps"]))
+
+
+def format_summary(rows: list[dict], best: bool = True) -> str:
+    """Markdown: one row per setting, one column per IS, ``mean +- std (n seeds)`` at the last
+    checkpoint, and at the best evaluated step when ``best``."""
+    settings = list(dict.fromkeys(r["setting"] for r in rows))
+    steps = sorted({r["inference_steps"] for r in rows})
+    cell = {(r["setting"], r["inference_steps"]): r for r in rows}
+
+    def fmt(r, which):
+        if r is None:
+            return "-"
+        m, s = r[which]
+        return f"{m:.0f} +- {s:.0f} ({r[which + '_seeds']}; {r[which + '_step']})"
+
+    head = [f"IS={k} last" for k in steps] + ([f"IS={k} best" for k in steps] if best else [])
+    lines = ["| setting | " + " | ".join(head) + " |", "| --- |" + " ---: |" * len(head)]
+    for s in settings:
+        vals = [fmt(cell.get((s, k)), "last") for k in steps]
+        if best:
+            vals += [fmt(cell.get((s, k)), "best") for k in steps]
+        lines.append(f"| {s} | " + " | ".join(vals) + " |")
+    return "\n".join(lines)
+
+
+def success_curve(cells: list[dict], study: str, setting: str, eval_task: str, inference_steps: int):
+    """``[(step, mean, std, n_seeds)]``: success against training steps (the convergence axis)."""
+    by_step: dict[int, list[float]] = {}
+    for c in cells:
+        if (c["study"], c["setting"], c["eval_task"], c["inference_steps"], c["time_spacing"]) == (
+            study,
+            setting,
+            eval_task,
+            inference_steps,
+            "checkpoint",
+        ):
+            by_step.setdefault(c["step"], []).append(c["pc_success"])
+    return [(s, *mean_std(v), len(v)) for s, v in sorted(by_step.items())]

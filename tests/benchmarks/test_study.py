@@ -1,0 +1,76 @@
+"""The learning study's cell store and summaries (benchmarks/study.py)."""
+
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
+from study import ABLATIONS, ResultStore, cell_key, mean_std, summarise
+
+
+def _cell(setting, seed, step, k, pc, study="ablation", task="Lift", spacing="checkpoint"):
+    return {
+        "study": study, "setting": setting, "seed": seed, "step": step, "eval_task": task,
+        "inference_steps": k, "time_spacing": spacing, "n_episodes": 50, "eval_seed": 1000,
+        "pc_success": pc,
+    }  # fmt: skip
+
+
+def test_two_stores_of_one_task_merge_their_cells(tmp_path):
+    """Two studies writing the same file side by side keep each other's cells."""
+    path = tmp_path / "Lift.json"
+    a, b = ResultStore(path, "Lift"), ResultStore(path, "Lift")
+    a.add(_cell("default", 0, 1000, 2, 80.0))
+    b.add(_cell("squash_off", 0, 1000, 2, 60.0))
+    a.add(_cell("default", 1, 1000, 2, 90.0))
+    again = ResultStore(path, "Lift")
+    assert len(again.cells) == 3
+    assert cell_key(_cell("squash_off", 0, 1000, 2, 0.0)) in again
+    assert not list(tmp_path.glob(".Lift.json.*")), "a temporary file was left behind"
+
+
+def test_a_cell_with_the_same_key_is_replaced(tmp_path):
+    store = ResultStore(tmp_path / "Lift.json", "Lift")
+    store.add(_cell("default", 0, 1000, 2, 10.0))
+    store.add(_cell("default", 0, 1000, 2, 30.0))
+    assert [c["pc_success"] for c in ResultStore(tmp_path / "Lift.json", "Lift").cells.values()] == [30.0]
+
+
+def test_a_store_of_another_task_is_refused(tmp_path):
+    ResultStore(tmp_path / "r.json", "Lift").add(_cell("default", 0, 1000, 2, 10.0))
+    with pytest.raises(ValueError, match="'Lift', not 'Square'"):
+        ResultStore(tmp_path / "r.json", "Square")
+
+
+def test_summary_gives_last_and_best_step_over_seeds():
+    cells = [
+        _cell("default", 0, 1000, 2, 60.0), _cell("default", 1, 1000, 2, 80.0),
+        _cell("default", 0, 2000, 2, 90.0), _cell("default", 1, 2000, 2, 100.0),
+        _cell("default", 0, 3000, 2, 70.0), _cell("default", 1, 3000, 2, 90.0),
+        _cell("default", 0, 3000, 2, 0.0, task="Lift_D1"),  # another task: not pooled
+        _cell("default", 0, 3000, 2, 0.0, spacing="exponential"),  # another grid: not pooled
+    ]  # fmt: skip
+    (row,) = summarise(cells, "ablation", "Lift")
+    assert row["last_step"] == 3000 and row["last"] == pytest.approx((80.0, 10.0))
+    assert row["best_step"] == 2000 and row["best"] == pytest.approx((95.0, 5.0))
+    assert row["last_seeds"] == row["best_seeds"] == 2
+
+
+def test_mean_std_is_the_population_spread():
+    assert mean_std([50.0]) == (50.0, 0.0)
+    assert mean_std([40.0, 60.0, 80.0]) == pytest.approx((60.0, (800 / 3) ** 0.5))
+
+
+def test_ablation_settings_parse_as_actionflow_configs():
+    """Every override names a real ActionFlow config field with a valid value."""
+    from lerobot_actionflow.policies.actionflow.configuration_actionflow import ActionflowConfig
+
+    for name, setting in ABLATIONS.items():
+        kwargs = {}
+        for flag in setting.overrides:
+            key, value = flag.removeprefix("--policy.").split("=")
+            field_type = type(getattr(ActionflowConfig(), key))
+            kwargs[key] = value == "true" if field_type is bool else field_type(value)
+        ActionflowConfig(**kwargs)  # raises on an unknown field or a refused value
+        assert setting.policy == "actionflow", name
