@@ -42,7 +42,17 @@ import sys
 import time
 from pathlib import Path
 
-from study import COMMON, CPU_SIZE, PAPER_SIZE, STUDIES, CellKey, ResultStore, format_summary, summarise
+from study import (
+    COMMON,
+    CPU_SIZE,
+    PAPER_SIZE,
+    STUDIES,
+    CellKey,
+    ResultStore,
+    format_summary,
+    plot_study,
+    summarise,
+)
 
 from lerobot_actionflow.demo import train_command
 
@@ -193,6 +203,10 @@ def run_study(args, env: dict, data: Path, repo_id: str) -> int:
                 print(f"\n{args.study} on {eval_task} (time grid: {spacing}); mean +- std over seeds "
                       "(seeds; checkpoint step)")  # fmt: skip
                 print(format_summary(rows))
+        if args.plot is not None and "checkpoint" in spacings:
+            path = args.plot.with_name(f"{args.plot.stem}_{eval_task}{args.plot.suffix}")
+            plot_study(cells, args.study, eval_task, path, f"{args.study}: {eval_task}")
+            print(f"plot: {path}")
     return 0
 
 

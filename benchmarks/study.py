@@ -230,3 +230,42 @@ def success_curve(cells: list[dict], study: str, setting: str, eval_task: str, i
         ):
             by_step.setdefault(c["step"], []).append(c["pc_success"])
     return [(s, *mean_std(v), len(v)) for s, v in sorted(by_step.items())]
+
+
+def plot_study(cells: list[dict], study: str, eval_task: str, path: Path, title: str) -> None:
+    """PNG with two panels: success (mean +- std over seeds) per setting at the last checkpoint,
+    one bar per IS; and success against training steps for every setting evaluated at more than
+    one checkpoint."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = summarise(cells, study, eval_task)
+    settings = list(dict.fromkeys(r["setting"] for r in rows))
+    steps = sorted({r["inference_steps"] for r in rows})
+    cell = {(r["setting"], r["inference_steps"]): r for r in rows}
+    fig, (bars, curves) = plt.subplots(1, 2, figsize=(11, 3.8), dpi=110)
+    width = 0.8 / max(len(steps), 1)
+    for j, k in enumerate(steps):
+        xs = [i + (j - (len(steps) - 1) / 2) * width for i, s in enumerate(settings) if (s, k) in cell]
+        ms = [cell[s, k]["last"][0] for s in settings if (s, k) in cell]
+        sd = [cell[s, k]["last"][1] for s in settings if (s, k) in cell]
+        bars.bar(xs, ms, width, yerr=sd, capsize=2, label=f"IS={k}")
+    bars.set_xticks(range(len(settings)), settings, rotation=35, ha="right", fontsize=8)
+    bars.set(ylabel="success % (last checkpoint)", ylim=(0, 105), title=title)
+    bars.legend(fontsize=8)
+    for s in settings:
+        for k in steps:
+            curve = success_curve(cells, study, s, eval_task, k)
+            if len(curve) > 1:
+                x, m, sd, _ = zip(*curve, strict=True)
+                curves.errorbar(x, m, yerr=sd, marker="o", capsize=2, label=f"{s}, IS={k}")
+    curves.set(xlabel="training steps", ylabel="success %", ylim=(0, 105), title="success against steps")
+    curves.grid(alpha=0.3)
+    if curves.lines:
+        curves.legend(fontsize=8)
+    fig.tight_layout()
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path)
+    plt.close(fig)

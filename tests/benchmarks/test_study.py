@@ -74,3 +74,12 @@ def test_ablation_settings_parse_as_actionflow_configs():
             kwargs[key] = value == "true" if field_type is bool else field_type(value)
         ActionflowConfig(**kwargs)  # raises on an unknown field or a refused value
         assert setting.policy == "actionflow", name
+
+
+def test_plot_study_writes_a_png(tmp_path):
+    from study import plot_study
+
+    cells = [_cell(s, seed, step, k, 50.0 + seed) for s in ("default", "squash_off") for seed in (0, 1)
+             for step in (1000, 2000) for k in (2, 10)]  # fmt: skip
+    plot_study(cells, "ablation", "Lift", tmp_path / "p.png", "t")
+    assert (tmp_path / "p.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
