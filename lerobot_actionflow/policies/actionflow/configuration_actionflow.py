@@ -18,6 +18,15 @@ from lerobot_actionflow.policies.config_errors import (
     require_probability,
 )
 from lerobot_actionflow.policies.execution import validate_execution_fields
+from lerobot_actionflow.policies.point_cloud_inputs import (
+    check_point_cloud_feature,
+    validate_point_cloud_fields,
+)
+from lerobot_actionflow.policies.wrist_focus import (
+    WRIST_FOCUS_THRESHOLD,
+    check_wrist_focus_features,
+    validate_wrist_focus_fields,
+)
 from lerobot_actionflow.schema import (
     ACTION_DIM,
     ACTION_KEY,
@@ -73,6 +82,17 @@ class ActionflowConfig(PreTrainedConfig):
         loss_weight_*: weights of the translation / rotation / gripper velocity errors.
         image_size [80x80], image_encoder_weights: ResNet18 input size and an optional local
             weights file (never downloaded).
+        point_cloud_key: an input feature ``(M, 3)`` (e.g. ``observation.point_cloud``: points
+            in the world/base frame, metres) turned into ``point_cloud_groups`` tokens; None
+            (default): no point tokens, even when the dataset has a cloud. Each token is a group
+            of the ``point_cloud_group_size`` nearest points around a farthest-point-sampled
+            centre (from the latest observation step), posed at (EEF rotation, centre), encoded
+            by a PointNet of hidden width ``point_cloud_width`` over the offsets in that frame
+            (:mod:`lerobot_actionflow.nn.point_tokens`); equivariance stays exact.
+        wrist_focus_camera, wrist_focus_size, wrist_focus_threshold: the image trick of
+            App. G.3 (:mod:`lerobot_actionflow.policies.wrist_focus`): once the gripper opening
+            from ``observation.state`` is below the threshold (metres), the named camera's
+            image is black outside its central ``wrist_focus_size`` square. None: off.
         compile_sampler: capture the whole K-step sampler with ``torch.compile``: on CUDA in mode
             ``compile_mode`` ("reduce-overhead" replays CUDA graphs), on the CPU with frozen,
             pre-packed weights and inductor's C++ wrapper (about 2.5x faster than eager at batch
@@ -141,6 +161,15 @@ class ActionflowConfig(PreTrainedConfig):
 
     image_size: tuple[int, int] | None = (80, 80)
     image_encoder_weights: str | None = None
+
+    point_cloud_key: str | None = None
+    point_cloud_groups: int = 32
+    point_cloud_group_size: int = 16
+    point_cloud_width: int = 64
+
+    wrist_focus_camera: str | None = None
+    wrist_focus_size: int = 30
+    wrist_focus_threshold: float = WRIST_FOCUS_THRESHOLD
 
     rotation_tolerance: float = 1e-2
 
@@ -211,6 +240,10 @@ class ActionflowConfig(PreTrainedConfig):
             f"`image_size` must be (height, width) >= 1, got {self.image_size!r}",
         )
         validate_execution_fields(self)
+        validate_point_cloud_fields(
+            self, ("point_cloud_groups", "point_cloud_group_size", "point_cloud_width")
+        )
+        validate_wrist_focus_fields(self)
         for kind in ("STATE", "ACTION"):
             mode = self.normalization_mapping.get(kind, NormalizationMode.IDENTITY)
             require(
@@ -287,6 +320,17 @@ class ActionflowConfig(PreTrainedConfig):
         for key, img in self.image_features.items():
             if img.type is FeatureType.VISUAL and len(img.shape) != 3:
                 raise ValueError(f"image feature '{key}' must be (C, H, W), got {tuple(img.shape)}")
+        check_point_cloud_feature(
+            self.input_features,
+            self.point_cloud_key,
+            max(self.point_cloud_groups, self.point_cloud_group_size),
+        )
+        check_wrist_focus_features(self)
+
+    @property
+    def point_cloud_feature(self):
+        """The point-cloud input feature the policy reads, or None."""
+        return None if self.point_cloud_key is None else (self.input_features or {}).get(self.point_cloud_key)
 
     @property
     def num_scalars(self) -> int:
