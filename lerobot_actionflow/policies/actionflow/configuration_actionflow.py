@@ -82,6 +82,9 @@ class ActionflowConfig(PreTrainedConfig):
         loss_weight_*: weights of the translation / rotation / gripper velocity errors.
         image_size [80x80], image_encoder_weights: ResNet18 input size and an optional local
             weights file (never downloaded).
+        pose_entities: the rows of ``observation.poses`` the policy reads, row 0 (the EEF)
+            first; empty (default): all. E.g. ``(0, 1)`` hides the task's later objects, so
+            that a policy sees one of them only through the point cloud.
         point_cloud_key: an input feature ``(M, 3)`` (e.g. ``observation.point_cloud``: points
             in the world/base frame, metres) turned into ``point_cloud_groups`` tokens; None
             (default): no point tokens, even when the dataset has a cloud. Each token is a group
@@ -162,6 +165,7 @@ class ActionflowConfig(PreTrainedConfig):
     image_size: tuple[int, int] | None = (80, 80)
     image_encoder_weights: str | None = None
 
+    pose_entities: tuple[int, ...] = ()
     point_cloud_key: str | None = None
     point_cloud_groups: int = 32
     point_cloud_group_size: int = 16
@@ -240,6 +244,16 @@ class ActionflowConfig(PreTrainedConfig):
             f"`image_size` must be (height, width) >= 1, got {self.image_size!r}",
         )
         validate_execution_fields(self)
+        require(
+            not self.pose_entities
+            or (
+                self.pose_entities[0] == 0
+                and all(isinstance(e, int) and e >= 0 for e in self.pose_entities)
+                and len(set(self.pose_entities)) == len(self.pose_entities)
+            ),
+            "`pose_entities` must be distinct row indices starting with 0 (the EEF), "
+            f"got {self.pose_entities!r}",
+        )
         validate_point_cloud_fields(
             self, ("point_cloud_groups", "point_cloud_group_size", "point_cloud_width")
         )
@@ -301,6 +315,9 @@ class ActionflowConfig(PreTrainedConfig):
                 f"'{ACTION_KEY}' must have shape ({ACTION_DIM},) [x y z rot6d(6) gripper], "
                 f"got {tuple(act.shape)}"
             )
+        bad_rows = [e for e in self.pose_entities if e >= ft.shape[0]]
+        if bad_rows:
+            raise ValueError(f"pose_entities {bad_rows} are outside the {ft.shape[0]} rows of '{POSES_KEY}'")
         state = self.robot_state_feature
         if state is not None and self.state_scalar_indices:
             bad = [i for i in self.state_scalar_indices if not 0 <= i < state.shape[0]]
@@ -314,9 +331,10 @@ class ActionflowConfig(PreTrainedConfig):
                 f"camera_entities has {len(self.camera_entities)} entries for {n_cam} image features "
                 f"{list(self.image_features)}"
             )
+        n_read = len(self.pose_entities) or ft.shape[0]
         for e in self.camera_entities:
-            if not 0 <= e < ft.shape[0]:
-                raise ValueError(f"camera entity {e} is outside the {ft.shape[0]} entities of '{POSES_KEY}'")
+            if not 0 <= e < n_read:
+                raise ValueError(f"camera entity {e} is outside the {n_read} entities the policy reads")
         for key, img in self.image_features.items():
             if img.type is FeatureType.VISUAL and len(img.shape) != 3:
                 raise ValueError(f"image feature '{key}' must be (C, H, W), got {tuple(img.shape)}")

@@ -54,7 +54,9 @@ class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
         super().__init__(config)
         config.validate_features()
         self.config = config
-        self.num_entities = config.poses_feature.shape[0]
+        #: Rows of observation.poses the network reads (config.pose_entities, else all).
+        self.pose_rows = list(config.pose_entities) or list(range(config.poses_feature.shape[0]))
+        self.num_entities = len(self.pose_rows)
         self.image_keys = list(config.image_features)
         camera_entities = tuple(config.camera_entities) or (0,) * len(self.image_keys)
         self.image_encoder = (
@@ -437,7 +439,8 @@ class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
         ``predict_action_chunk``), else ``(B, ...)`` (one step, ``select_action``). Shapes come
         from the config's input features; floating inputs are cast to the policy's dtype (see
         :mod:`lerobot_actionflow.policies.inputs`). The quaternions of ``observation.poses`` must
-        be unit within ``rotation_tolerance`` and are returned normalised.
+        be unit within ``rotation_tolerance`` and are returned normalised, keeping only the rows
+        of ``pose_entities`` when the config names them.
 
         Raises:
             ValueError: naming the feature, the expected shape and dtype, and what was given.
@@ -447,7 +450,10 @@ class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
         )
         poses = obs[POSES_KEY]
         quat = check_quaternion(poses[..., 3:], atol=self.config.rotation_tolerance, name=POSES_KEY)
-        obs[POSES_KEY] = torch.cat([poses[..., :3], quat], dim=-1)
+        poses = torch.cat([poses[..., :3], quat], dim=-1)
+        if self.config.pose_entities:
+            poses = poses[..., self.pose_rows, :]
+        obs[POSES_KEY] = poses
         return obs
 
     @property

@@ -72,6 +72,9 @@ class EuclideanFlowConfig(PreTrainedConfig):
     ``point_cloud_feature_dim`` features) whose output joins that step's conditioning. Nothing
     is centred or rotated: this is the non-equivariant baseline.
 
+    ``use_environment_state=False`` ignores ``observation.environment_state`` (the object poses)
+    even when the dataset has it: a point-cloud policy then sees the objects only in the cloud.
+
     Wrist focus (App. G.3): ``wrist_focus_camera``, ``wrist_focus_size``,
     ``wrist_focus_threshold``, as in ``actionflow``
     (:mod:`lerobot_actionflow.policies.wrist_focus`).
@@ -132,6 +135,9 @@ class EuclideanFlowConfig(PreTrainedConfig):
     spatial_softmax_num_keypoints: int = 32
     use_separate_rgb_encoder_per_camera: bool = True
 
+    # False: ignore observation.environment_state (the object poses) even when the dataset has it,
+    # e.g. so that a point-cloud policy sees the objects only through the cloud.
+    use_environment_state: bool = True
     # Point cloud (None: off): a PointNet global feature per observation step.
     point_cloud_key: str | None = None
     point_cloud_width: int = 128
@@ -262,7 +268,7 @@ class EuclideanFlowConfig(PreTrainedConfig):
         check_point_cloud_feature(self.input_features, self.point_cloud_key, 1)
         if (
             self.robot_state_feature is None
-            and self.env_state_feature is None
+            and self.read_env_state_feature is None
             and not self.image_features
             and self.point_cloud_key is None
         ):
@@ -296,12 +302,17 @@ class EuclideanFlowConfig(PreTrainedConfig):
             raise ValueError(f"all camera images must have the same shape, got {sorted(shapes)}")
 
     @property
+    def read_env_state_feature(self):
+        """``observation.environment_state`` when the policy reads it (``use_environment_state``)."""
+        return self.env_state_feature if self.use_environment_state else None
+
+    @property
     def used_input_features(self) -> dict:
         """The observation features the policy reads: images, state, environment state, and the
         point cloud when ``point_cloud_key`` is set."""
         used = {key: ft for key, ft in self.image_features.items()}
         for key, ft in (self.input_features or {}).items():
-            if ft is self.robot_state_feature or ft is self.env_state_feature:
+            if ft is self.robot_state_feature or (ft is self.read_env_state_feature and ft is not None):
                 used[key] = ft
         if self.point_cloud_key is not None and self.point_cloud_key in (self.input_features or {}):
             used[self.point_cloud_key] = self.input_features[self.point_cloud_key]

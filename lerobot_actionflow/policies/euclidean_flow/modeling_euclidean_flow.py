@@ -58,7 +58,7 @@ class ObservationEncoder(nn.Module):
     def __init__(self, config: EuclideanFlowConfig):
         super().__init__()
         self.use_state = config.robot_state_feature is not None
-        self.use_env = config.env_state_feature is not None
+        self.use_env = config.read_env_state_feature is not None
         self.num_cameras = len(config.image_features)
         self.separate = config.use_separate_rgb_encoder_per_camera
         dim = config.robot_state_feature.shape[0] if self.use_state else 0
@@ -125,7 +125,7 @@ class EuclideanFlowPolicy(StrictLoading, PreTrainedPolicy):
         self._smoother = TargetSmoother(self.config.target_smoothing)
         if self.config.robot_state_feature is not None:
             self._queues[OBS_STATE] = deque(maxlen=n)
-        if self.config.env_state_feature is not None:
+        if self.config.read_env_state_feature is not None:
             self._queues[OBS_ENV_STATE] = deque(maxlen=n)
         if self.config.image_features:
             self._queues[OBS_IMAGES] = deque(maxlen=n)

@@ -185,3 +185,24 @@ def test_group_indices_are_deterministic_and_move_with_the_scene():
     nbr = point_tokens.knn_indices(pts, centres, 5)
     assert (nbr[..., 0] == idx).all()  # each centre is its own nearest point
     assert torch.equal(nbr, point_tokens.knn_indices(pts @ r_d.T + p_d, centres @ r_d.T + p_d, 5))
+
+
+def test_pose_entities_hide_the_other_rows():
+    """``pose_entities=(0,)``: the objects' pose rows are not read (changing them changes nothing),
+    and the point-cloud policy stays equivariant."""
+    policy = _policy(pose_entities=(0,))
+    assert policy.num_entities == 1
+    gen = torch.Generator().manual_seed(9)
+    batch = _batch(policy, gen)
+    noise = se3_flow.draw_local_noise(3, policy.config.horizon, 0.1, generator=gen)
+    a = policy.predict_action_chunk(batch, noise=noise)
+    moved = dict(batch)
+    moved["observation.poses"] = batch["observation.poses"].clone()
+    moved["observation.poses"][:, :, 1:, :3] += 1.0
+    assert torch.equal(policy.predict_action_chunk(moved, noise=noise), a)
+    r_d, p_d = g.random_rotation(generator=gen), torch.randn(3, generator=gen)
+    assert _equivariance_error(policy, batch, r_d, p_d, gen) <= 1e-5
+    with pytest.raises(ValueError, match="pose_entities"):
+        small_config(pose_entities=(1, 0))
+    with pytest.raises(ValueError, match=r"pose_entities \[7\] are outside the 4 rows"):
+        ActionflowPolicy(_config(pose_entities=(0, 7)))

@@ -74,3 +74,17 @@ def test_missing_cloud_feature_is_refused_by_name():
         EuclideanFlowPolicy(bimodal_config(point_cloud_key=POINT_CLOUD_KEY))
     with pytest.raises(ValueError, match="point_cloud_width"):
         bimodal_config(point_cloud_width=0)
+
+
+def test_environment_state_can_be_ignored():
+    feats = {
+        "observation.state": PolicyFeature(FeatureType.STATE, (3,)),
+        "observation.environment_state": PolicyFeature(FeatureType.ENV, (9,)),
+        POINT_CLOUD_KEY: PolicyFeature(FeatureType.STATE, (M, 3)),
+    }
+    cfg = bimodal_config(input_features=feats, point_cloud_key=POINT_CLOUD_KEY, use_environment_state=False)
+    assert set(cfg.used_input_features) == {"observation.state", POINT_CLOUD_KEY}
+    policy = EuclideanFlowPolicy(cfg)
+    assert not policy.obs_encoder.use_env
+    with_env = EuclideanFlowPolicy(bimodal_config(input_features=feats, point_cloud_key=POINT_CLOUD_KEY))
+    assert with_env.obs_encoder.feature_dim == policy.obs_encoder.feature_dim + 9
