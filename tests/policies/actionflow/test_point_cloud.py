@@ -7,7 +7,6 @@ from lerobot.configs.types import FeatureType, PolicyFeature
 
 from lerobot_actionflow import geometry as g
 from lerobot_actionflow.flow import se3 as se3_flow
-from lerobot_actionflow.nn import point_tokens
 from lerobot_actionflow.policies.actionflow.modeling_actionflow import ActionflowPolicy
 from lerobot_actionflow.schema import POINT_CLOUD_KEY
 from lerobot_actionflow.schema.tensors import action_to_pose
@@ -169,22 +168,6 @@ def test_export_refuses_point_cloud_policies(tmp_path):
 
     with pytest.raises(ValueError, match=r"reads the point cloud 'observation\.point_cloud'"):
         export_sampler(_policy(), tmp_path, num_inference_steps=2)
-
-
-def test_group_indices_are_deterministic_and_move_with_the_scene():
-    gen = torch.Generator().manual_seed(8)
-    pts = torch.randn(2, 40, 3, generator=gen, dtype=torch.float64)
-    r_d, p_d = (
-        g.random_rotation(generator=gen, dtype=torch.float64),
-        torch.randn(3, generator=gen, dtype=torch.float64),
-    )
-    idx = point_tokens.farthest_point_indices(pts, 10)
-    assert (idx[:, 0] == 0).all() and torch.equal(idx, point_tokens.farthest_point_indices(pts, 10))
-    assert torch.equal(idx, point_tokens.farthest_point_indices(pts @ r_d.T + p_d, 10))
-    centres = pts[torch.arange(2)[:, None], idx]
-    nbr = point_tokens.knn_indices(pts, centres, 5)
-    assert (nbr[..., 0] == idx).all()  # each centre is its own nearest point
-    assert torch.equal(nbr, point_tokens.knn_indices(pts @ r_d.T + p_d, centres @ r_d.T + p_d, 5))
 
 
 def test_pose_entities_hide_the_other_rows():
