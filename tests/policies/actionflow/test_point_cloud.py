@@ -60,6 +60,16 @@ def test_sampled_actions_are_equivariant_with_point_clouds(dtype, tol):
     assert _equivariance_error(policy, batch, r_d, p_d, gen) <= tol
 
 
+def test_equivariant_with_world_frame_adaptation():
+    """With adaptation_frame='world' nothing is re-expressed in the EEF frame: the point tokens'
+    frames must move rigidly with the scene for IPA alone to keep the invariance."""
+    policy = _policy(adaptation_frame="world", squash_translations=False)
+    gen = torch.Generator().manual_seed(10)
+    batch = _batch(policy, gen)
+    r_d, p_d = g.random_rotation(generator=gen), torch.randn(3, generator=gen)
+    assert _equivariance_error(policy, batch, r_d, p_d, gen) <= 1e-5
+
+
 def test_point_tokens_change_the_actions():
     """The cloud is read: moving one object's points changes the sampled chunk."""
     policy = _policy()
