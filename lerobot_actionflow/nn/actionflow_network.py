@@ -1,13 +1,16 @@
 """ActionFlow's velocity field ``v_theta(T_k, T_o, F_o, t)``: posed tokens through the
 SE(3)-invariant transformer (App. C, D, F, G).
 
-Tokens (``L = H_o N + H_o N_cam + H``):
+Tokens (``L = H_o N + H_o N_cam + G + H``):
 
 * observation entities, for each of the ``H_o`` history steps and ``N`` entity slots: pose
   ``T_{h,e}``, feature ``E_entity[e] + E_history[h] + Linear(scalars_{h,e})`` (per-entity
   invariant scalars, e.g. the gripper opening for the end-effector);
 * camera features (optional): ResNet18 features projected to ``C``, plus ``E_camera[c] +
   E_history[h]``, posed at the entity that carries the camera (the EEF for a wrist camera);
+* point-cloud groups (optional; :mod:`lerobot_actionflow.nn.point_tokens`): ``G`` tokens from
+  the latest step's cloud, posed at (EEF rotation, group centre), feature a PointNet of the
+  group's offsets in that frame plus ``E_points``;
 * action tokens, for each of the ``H`` horizon steps: the current (noisy) pose ``T_k`` and
   feature ``E_step[k] + Linear(g_k)``.
 
@@ -40,6 +43,7 @@ from torch import nn
 from lerobot_actionflow.flow.se3 import PoseChunk, PoseVelocity
 from lerobot_actionflow.nn.embeddings import SinusoidalTimeEmbedding
 from lerobot_actionflow.nn.ipa import DEFAULT_IPA_SIZE, IPASize
+from lerobot_actionflow.nn.point_tokens import PointGroupTokenizer
 from lerobot_actionflow.nn.pose_adaptation import PoseAdaptation
 from lerobot_actionflow.nn.se3_transformer import SE3InvariantTransformer
 
@@ -55,12 +59,14 @@ class ObservationTokens:
         r: entity rotations ``(B, H_o, N, 3, 3)``; p: positions ``(B, H_o, N, 3)``; row 0 the EEF.
         scalars: per-entity invariant scalars ``(B, H_o, N, S)`` or None.
         image_features: ``(B, H_o, N_cam, F)`` encoder outputs or None.
+        points: the latest step's point cloud ``(B, M, 3)`` (world frame, metres) or None.
     """
 
     r: torch.Tensor
     p: torch.Tensor
     scalars: torch.Tensor | None = None
     image_features: torch.Tensor | None = None
+    points: torch.Tensor | None = None
 
 
 @dataclass
@@ -94,6 +100,9 @@ class ActionFlowNetwork(nn.Module):
         dropout: float = 0.0,
         adaptation: PoseAdaptation | None = None,
         translation_frame: str = "pose",
+        point_groups: int = 0,
+        point_group_size: int = 16,
+        point_width: int = 64,
     ):
         super().__init__()
         if translation_frame not in TRANSLATION_FRAMES:
@@ -120,6 +129,12 @@ class ActionFlowNetwork(nn.Module):
         self.time_embed = SinusoidalTimeEmbedding(dim)
         self.transformer = SE3InvariantTransformer(size, depth, mlp_ratio, dropout)
         self.head = nn.Sequential(nn.LayerNorm(dim), nn.Linear(dim, 7))
+        # Point-cloud group tokens (point_groups = G > 0).
+        self.point_tokens = (
+            PointGroupTokenizer(point_groups, point_group_size, point_width, dim) if point_groups else None
+        )
+        if self.point_tokens is not None:
+            self.point_embed = nn.Parameter(torch.randn(dim) * 0.02)
 
     def encode_observations(self, obs: ObservationTokens) -> EncodedObservations:
         """Observation tokens through the transformer, once per chunk."""
@@ -141,11 +156,36 @@ class ActionFlowNetwork(nn.Module):
             r = torch.cat((r, r[:, :, idx]), 2)
             p = torch.cat((p, p[:, :, idx]), 2)
         l_o = f.shape[1] * f.shape[2]
+        f, r, p = f.reshape(b, l_o, -1), r.reshape(b, l_o, 3, 3), p.reshape(b, l_o, 3)
         r_ref, p_ref = obs.r[:, -1, 0], obs.p[:, -1, 0]
-        r_o, p_o = self.adaptation(r_ref, p_ref, r.reshape(b, l_o, 3, 3), p.reshape(b, l_o, 3))
+        if self.point_tokens is not None:
+            f, r, p = self._with_point_tokens(obs.points, r_ref, f, r, p)
+        r_o, p_o = self.adaptation(r_ref, p_ref, r, p)
         center = p_o.mean(1, keepdim=True)
-        context = self.transformer.encode_context(f.reshape(b, l_o, -1), r_o, p_o - center)
+        context = self.transformer.encode_context(f, r_o, p_o - center)
         return EncodedObservations(r_ref, p_ref, center, context)
+
+    def _with_point_tokens(
+        self,
+        points: torch.Tensor | None,
+        r_ref: torch.Tensor,
+        f: torch.Tensor,
+        r: torch.Tensor,
+        p: torch.Tensor,
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """The observation tokens ``f (B, L, C)``, ``r (B, L, 3, 3)``, ``p (B, L, 3)`` followed by
+        the ``G`` point-group tokens of ``points (B, M, 3)``, posed at ``(r_ref, centre)``."""
+        if points is None:
+            raise ValueError(
+                "the network has point-cloud tokens: ObservationTokens.points (B, M, 3) is required"
+            )
+        if points.ndim != 3 or points.shape[0] != f.shape[0]:
+            raise ValueError(f"point cloud must have shape (B={f.shape[0]}, M, 3), got {tuple(points.shape)}")
+        feats, centres = self.point_tokens(points, r_ref, self.adaptation.translation_scale)
+        g = feats.shape[1]
+        f = torch.cat((f, feats + self.point_embed), 1)
+        r = torch.cat((r, r_ref[:, None].expand(-1, g, -1, -1)), 1)
+        return f, r, torch.cat((p, centres), 1)
 
     def time_shifts(self, t: torch.Tensor) -> list[torch.Tensor]:
         """Per-block time conditioning for flow times ``t (N,)``: ``depth x (N, C)``."""

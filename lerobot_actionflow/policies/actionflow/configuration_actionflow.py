@@ -19,6 +19,15 @@ from lerobot_actionflow.policies.config_errors import (
     require_probability,
 )
 from lerobot_actionflow.policies.execution import validate_execution_fields
+from lerobot_actionflow.policies.point_cloud_inputs import (
+    check_point_cloud_feature,
+    validate_point_cloud_fields,
+)
+from lerobot_actionflow.policies.wrist_focus import (
+    WRIST_FOCUS_THRESHOLD,
+    check_wrist_focus_features,
+    validate_wrist_focus_fields,
+)
 from lerobot_actionflow.schema import (
     ACTION_DIM,
     ACTION_KEY,
@@ -78,6 +87,20 @@ class ActionflowConfig(PreTrainedConfig):
         loss_weight_*: weights of the translation / rotation / gripper velocity errors.
         image_size [80x80], image_encoder_weights: ResNet18 input size and an optional local
             weights file (never downloaded).
+        pose_entities: the rows of ``observation.poses`` the policy reads, row 0 (the EEF)
+            first; empty (default): all. E.g. ``(0, 1)`` hides the task's later objects, so
+            that a policy sees one of them only through the point cloud.
+        point_cloud_key: an input feature ``(M, 3)`` (e.g. ``observation.point_cloud``: points
+            in the world/base frame, metres) turned into ``point_cloud_groups`` tokens; None
+            (default): no point tokens, even when the dataset has a cloud. Each token is a group
+            of the ``point_cloud_group_size`` nearest points around a farthest-point-sampled
+            centre (from the latest observation step), posed at (EEF rotation, centre), encoded
+            by a PointNet of hidden width ``point_cloud_width`` over the offsets in that frame
+            (:mod:`lerobot_actionflow.nn.point_tokens`); equivariance stays exact.
+        wrist_focus_camera, wrist_focus_size, wrist_focus_threshold: the image trick of
+            App. G.3 (:mod:`lerobot_actionflow.policies.wrist_focus`): once the gripper opening
+            from ``observation.state`` is below the threshold (metres), the named camera's
+            image is black outside its central ``wrist_focus_size`` square. None: off.
         compile_sampler: capture the whole K-step sampler with ``torch.compile``: on CUDA in mode
             ``compile_mode`` ("reduce-overhead" replays CUDA graphs), on the CPU with frozen,
             pre-packed weights and inductor's C++ wrapper (about 2.5x faster than eager at batch
@@ -147,6 +170,16 @@ class ActionflowConfig(PreTrainedConfig):
 
     image_size: tuple[int, int] | None = (80, 80)
     image_encoder_weights: str | None = None
+
+    pose_entities: tuple[int, ...] = ()
+    point_cloud_key: str | None = None
+    point_cloud_groups: int = 32
+    point_cloud_group_size: int = 16
+    point_cloud_width: int = 64
+
+    wrist_focus_camera: str | None = None
+    wrist_focus_size: int = 30
+    wrist_focus_threshold: float = WRIST_FOCUS_THRESHOLD
 
     rotation_tolerance: float = 1e-2
 
@@ -218,6 +251,20 @@ class ActionflowConfig(PreTrainedConfig):
             f"`image_size` must be (height, width) >= 1, got {self.image_size!r}",
         )
         validate_execution_fields(self)
+        require(
+            not self.pose_entities
+            or (
+                self.pose_entities[0] == 0
+                and all(isinstance(e, int) and e >= 0 for e in self.pose_entities)
+                and len(set(self.pose_entities)) == len(self.pose_entities)
+            ),
+            "`pose_entities` must be distinct row indices starting with 0 (the EEF), "
+            f"got {self.pose_entities!r}",
+        )
+        validate_point_cloud_fields(
+            self, ("point_cloud_groups", "point_cloud_group_size", "point_cloud_width")
+        )
+        validate_wrist_focus_fields(self)
         for kind in ("STATE", "ACTION"):
             mode = self.normalization_mapping.get(kind, NormalizationMode.IDENTITY)
             require(
@@ -275,6 +322,9 @@ class ActionflowConfig(PreTrainedConfig):
                 f"'{ACTION_KEY}' must have shape ({ACTION_DIM},) [x y z rot6d(6) gripper], "
                 f"got {tuple(act.shape)}"
             )
+        bad_rows = [e for e in self.pose_entities if e >= ft.shape[0]]
+        if bad_rows:
+            raise ValueError(f"pose_entities {bad_rows} are outside the {ft.shape[0]} rows of '{POSES_KEY}'")
         state = self.robot_state_feature
         if state is not None and self.state_scalar_indices:
             bad = [i for i in self.state_scalar_indices if not 0 <= i < state.shape[0]]
@@ -288,12 +338,24 @@ class ActionflowConfig(PreTrainedConfig):
                 f"camera_entities has {len(self.camera_entities)} entries for {n_cam} image features "
                 f"{list(self.image_features)}"
             )
+        n_read = len(self.pose_entities) or ft.shape[0]
         for e in self.camera_entities:
-            if not 0 <= e < ft.shape[0]:
-                raise ValueError(f"camera entity {e} is outside the {ft.shape[0]} entities of '{POSES_KEY}'")
+            if not 0 <= e < n_read:
+                raise ValueError(f"camera entity {e} is outside the {n_read} entities the policy reads")
         for key, img in self.image_features.items():
             if img.type is FeatureType.VISUAL and len(img.shape) != 3:
                 raise ValueError(f"image feature '{key}' must be (C, H, W), got {tuple(img.shape)}")
+        check_point_cloud_feature(
+            self.input_features,
+            self.point_cloud_key,
+            max(self.point_cloud_groups, self.point_cloud_group_size),
+        )
+        check_wrist_focus_features(self)
+
+    @property
+    def point_cloud_feature(self):
+        """The point-cloud input feature the policy reads, or None."""
+        return None if self.point_cloud_key is None else (self.input_features or {}).get(self.point_cloud_key)
 
     @property
     def num_scalars(self) -> int:

@@ -282,7 +282,8 @@ def export_sampler(
     when complete, so an interrupted export leaves any earlier artefact as it was.
 
     Raises:
-        ValueError: K < 1, ``batch_size`` < 1, or a device type other than cpu / cuda.
+        ValueError: K < 1, ``batch_size`` < 1, a device type other than cpu / cuda, or a policy
+            that reads a point cloud (``point_cloud_key``; not supported by the artefacts).
         RuntimeError: CUDA requested but not available.
     """
     if num_inference_steps < 1:
@@ -293,6 +294,11 @@ def export_sampler(
         raise ValueError(f"device must be 'cpu' or 'cuda', got {device!r}")
     if device == "cuda" and not torch.cuda.is_available():
         raise RuntimeError("--device cuda: torch sees no CUDA device on this machine")
+    if policy.config.point_cloud_key is not None:
+        raise ValueError(
+            f"this policy reads the point cloud '{policy.config.point_cloud_key}' (point_cloud_key), "
+            "which exported samplers do not take: run it eagerly, or with compile_sampler=true"
+        )
     policy = policy.to(device).eval()
     program = SamplerProgram(policy, num_inference_steps).to(device).eval()
     example = _example_inputs(policy, batch_size, torch.device(device))

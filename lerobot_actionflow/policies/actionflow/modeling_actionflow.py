@@ -54,7 +54,9 @@ class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
         super().__init__(config)
         config.validate_features()
         self.config = config
-        self.num_entities = config.poses_feature.shape[0]
+        #: Rows of observation.poses the network reads (config.pose_entities, else all).
+        self.pose_rows = list(config.pose_entities) or list(range(config.poses_feature.shape[0]))
+        self.num_entities = len(self.pose_rows)
         self.image_keys = list(config.image_features)
         camera_entities = tuple(config.camera_entities) or (0,) * len(self.image_keys)
         self.image_encoder = (
@@ -82,6 +84,9 @@ class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
                 config.adaptation_frame, config.translation_scale, config.squash_translations
             ),
             translation_frame=config.translation_velocity_frame,
+            point_groups=config.point_cloud_groups if config.point_cloud_key else 0,
+            point_group_size=config.point_cloud_group_size,
+            point_width=config.point_cloud_width,
         )
         #: Per-step shape of every observation feature the policy reads.
         self._observation_shapes = {POSES_KEY: tuple(config.poses_feature.shape)}
@@ -89,6 +94,10 @@ class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
             self._observation_shapes[STATE_KEY] = tuple(config.robot_state_feature.shape)
         for key in self.image_keys:  # any H, W: the image encoder resizes to config.image_size
             self._observation_shapes[key] = (config.image_features[key].shape[0], "H", "W")
+        #: The point-cloud feature read (its latest step becomes the point tokens), or None.
+        self.point_cloud_key = config.point_cloud_key
+        if self.point_cloud_key is not None:
+            self._observation_shapes[self.point_cloud_key] = tuple(config.point_cloud_feature.shape)
         self._compiled_sampler = None
         #: Exported samplers attached by :meth:`from_pretrained` (or :meth:`attach_exported_samplers`).
         self.exported_samplers: ExportedSamplers | None = None
@@ -103,6 +112,8 @@ class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
         keys = [POSES_KEY, *self.image_keys]
         if self.config.num_scalars:
             keys.append(STATE_KEY)
+        if self.point_cloud_key is not None:
+            keys.append(self.point_cloud_key)
         self._queues = {k: deque(maxlen=self.config.n_obs_steps) for k in keys}
         self._queues[ACTION_KEY] = deque(maxlen=self.config.n_action_steps)
         self._smoother = TargetSmoother(self.config.target_smoothing)
@@ -281,11 +292,14 @@ class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
             )  # fmt: skip
         state = obs[STATE_KEY] if cfg.num_scalars else None
         image_features = self._image_features(obs)
-        exported = self.exported_samplers.get(device, k, b) if self.exported_samplers is not None else None
+        points = self._latest_points(obs)
+        # Exported artefacts take no point cloud (actionflow-export refuses such policies).
+        use_exported = self.exported_samplers is not None and points is None
+        exported = self.exported_samplers.get(device, k, b) if use_exported else None
         if exported is not None:
             return exported(poses, state, image_features, noise)
         times = schedules.make_time_grid(k, cfg.time_spacing, cfg.time_spacing_rate, dtype, device)
-        args = (poses, state, image_features, noise.r, noise.p, noise.g, times)
+        args = (poses, state, image_features, noise.r, noise.p, noise.g, times, points)
         if self._use_compiled_sampler(device):
             if self._compiled_sampler is None:
                 self._compiled_sampler = self._compile_sampler(device)
@@ -381,6 +395,7 @@ class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
         noise_p: Tensor,
         noise_g: Tensor,
         times: Tensor,
+        points: Tensor | None = None,
     ) -> Tensor:
         """The sampler from checked observations to actions, as one tensor-in/tensor-out function
         (what ``torch.compile`` compiles and :mod:`~lerobot_actionflow.policies.actionflow.exported`
@@ -392,15 +407,20 @@ class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
                 ``(B, n_obs_steps, N_cam, 512)`` or None.
             noise_r, noise_p, noise_g: initial noise in the EEF frame ``(B, H, 3, 3)``,
                 ``(B, H, 3)``, ``(B, H)``; times: the ``K + 1`` flow times.
+            points: the latest step's point cloud ``(B, M, 3)`` when the policy reads one.
         Returns:
             actions ``(B, H, 10)``.
         """
-        obs = self._tokens(poses, state, image_features)
-        return self._sample(obs.r, obs.p, obs.scalars, obs.image_features, noise_r, noise_p, noise_g, times)
+        obs = self._tokens(poses, state, image_features, points)
+        return self._sample(
+            obs.r, obs.p, obs.scalars, obs.image_features, noise_r, noise_p, noise_g, times, points=obs.points
+        )
 
-    def _sample(self, obs_r, obs_p, scalars, image_features, noise_r, noise_p, noise_g, times) -> Tensor:
+    def _sample(
+        self, obs_r, obs_p, scalars, image_features, noise_r, noise_p, noise_g, times, points=None
+    ) -> Tensor:
         """The K-step sampler from network inputs (:class:`ObservationTokens`' tensors) to actions."""
-        obs = ObservationTokens(obs_r, obs_p, scalars, image_features)
+        obs = ObservationTokens(obs_r, obs_p, scalars, image_features, points)
         encoded = self.network.encode_observations(obs)
         noise = se3_flow.LocalNoise(noise_r, noise_p, noise_g)
         x0 = se3_flow.noise_to_world(noise, encoded.r_ref, encoded.p_ref)
@@ -420,7 +440,8 @@ class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
         ``predict_action_chunk``), else ``(B, ...)`` (one step, ``select_action``). Shapes come
         from the config's input features; floating inputs are cast to the policy's dtype (see
         :mod:`lerobot_actionflow.policies.inputs`). The quaternions of ``observation.poses`` must
-        be unit within ``rotation_tolerance`` and are returned normalised.
+        be unit within ``rotation_tolerance`` and are returned normalised, keeping only the rows
+        of ``pose_entities`` when the config names them.
 
         Raises:
             ValueError: naming the feature, the expected shape and dtype, and what was given.
@@ -430,7 +451,10 @@ class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
         )
         poses = obs[POSES_KEY]
         quat = check_quaternion(poses[..., 3:], atol=self.config.rotation_tolerance, name=POSES_KEY)
-        obs[POSES_KEY] = torch.cat([poses[..., :3], quat], dim=-1)
+        poses = torch.cat([poses[..., :3], quat], dim=-1)
+        if self.config.pose_entities:
+            poses = poses[..., self.pose_rows, :]
+        obs[POSES_KEY] = poses
         return obs
 
     @property
@@ -439,7 +463,13 @@ class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
 
     def _observation_tokens(self, obs: dict[str, Tensor]) -> ObservationTokens:
         """Network inputs from a checked observation history (:meth:`check_observation`)."""
-        return self._tokens(obs[POSES_KEY], obs.get(STATE_KEY), self._image_features(obs))
+        return self._tokens(
+            obs[POSES_KEY], obs.get(STATE_KEY), self._image_features(obs), self._latest_points(obs)
+        )
+
+    def _latest_points(self, obs: dict[str, Tensor]) -> Tensor | None:
+        """The latest step's checked point cloud ``(B, M, 3)``, or None when the policy reads none."""
+        return None if self.point_cloud_key is None else obs[self.point_cloud_key][:, -1]
 
     def _image_features(self, obs: dict[str, Tensor]) -> Tensor | None:
         """ResNet18 features ``(B, n_obs_steps, N_cam, F)`` of the checked images, or None."""
@@ -450,10 +480,11 @@ class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
         return torch.stack(feats, 2)
 
     def _tokens(
-        self, poses: Tensor, state: Tensor | None, image_features: Tensor | None
+        self, poses: Tensor, state: Tensor | None, image_features: Tensor | None, points: Tensor | None = None
     ) -> ObservationTokens:
         """Network inputs from checked poses ``(B, S, N, 7)`` (unit quaternions), the state
-        ``(B, S, 11)`` (read only when ``num_scalars``) and image features."""
+        ``(B, S, 11)`` (read only when ``num_scalars``), image features and the latest point
+        cloud ``(B, M, 3)`` (or None)."""
         cfg = self.config
         r, p = quaternion_to_matrix(poses[..., 3:]), poses[..., :3]
         scalars = None
@@ -462,7 +493,7 @@ class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
             # Only the EEF token carries scalars; the object slots get zeros.
             others = eef_scalars.new_zeros(*eef_scalars.shape[:2], self.num_entities - 1, cfg.num_scalars)
             scalars = torch.cat((eef_scalars[:, :, None], others), 2)
-        return ObservationTokens(r, p, scalars, image_features)
+        return ObservationTokens(r, p, scalars, image_features, points)
 
 
 def _download_exported(repo_id: str, hub_kwargs: dict) -> Path | None:

@@ -5,7 +5,9 @@ Pre: rename -> split a robot's flat observation into the dataset's features (``l
 Normalisation is restricted, per feature, to what may be normalised: ``observation.poses`` and
 ``action`` are passed through untouched whatever ``normalization_mapping`` says, because
 mean/std scaling of positions would break SE(3) equivariance (the network's adaptation module
-handles scale). Post: to CPU (actions are absolute poses already).
+handles scale); so is the point cloud the config reads (metres, like the poses). With
+``wrist_focus_camera`` set, :class:`~lerobot_actionflow.policies.wrist_focus.WristFocusStep`
+masks that camera's image before normalisation (App. G.3). Post: to CPU (actions are absolute poses already).
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ from lerobot.processor.factory import make_default_policy_processor_steps, make_
 from lerobot.processor.normalize_processor import NormalizerProcessorStep, UnnormalizerProcessorStep
 
 from lerobot_actionflow.policies.actionflow.configuration_actionflow import ActionflowConfig
+from lerobot_actionflow.policies.wrist_focus import wrist_focus_steps
 from lerobot_actionflow.robots.processor import robot_observation_steps
 from lerobot_actionflow.schema import ACTION_KEY, POSES_KEY
 
@@ -33,8 +36,9 @@ def make_actionflow_pre_post_processors(
     PolicyProcessorPipeline[PolicyAction, PolicyAction],
 ]:
     steps = make_default_policy_processor_steps(config, dataset_stats)
+    raw = (*POSE_FEATURES, config.point_cloud_key)
     normalize = NormalizerProcessorStep(
-        features={k: ft for k, ft in config.input_features.items() if k not in POSE_FEATURES},
+        features={k: ft for k, ft in config.input_features.items() if k not in raw},
         norm_map=config.normalization_mapping,
         stats=dataset_stats,
     )
@@ -52,6 +56,7 @@ def make_actionflow_pre_post_processors(
             *robot_observation_steps(config),
             steps.add_batch_dim,
             steps.to_device,
+            *wrist_focus_steps(config),
             normalize,
         ],
         output_steps=[unnormalize, steps.to_cpu],

@@ -2,8 +2,9 @@
 a rectified linear flow (ActionFlow paper, App. B and E).
 
 Observation inputs (any of them, at least one): ``observation.state`` ``(S_dim,)``,
-``observation.environment_state`` ``(E_dim,)``, ``observation.images.<camera>`` ``(3, H, W)``.
-Other observation keys (e.g. ``observation.poses``) are ignored. Output: ``action`` ``(A,)``,
+``observation.environment_state`` ``(E_dim,)``, ``observation.images.<camera>`` ``(3, H, W)``,
+and the point cloud named by ``point_cloud_key`` ``(M, 3)``. Other observation keys (e.g.
+``observation.poses``) are ignored. Output: ``action`` ``(A,)``,
 min-max normalised to ``[-1, 1]`` like Diffusion Policy.
 
 Inference knobs that need no retraining (they are read at every call, and can be overridden per
@@ -33,6 +34,15 @@ from lerobot_actionflow.policies.config_errors import (
     require_probability,
 )
 from lerobot_actionflow.policies.execution import validate_execution_fields
+from lerobot_actionflow.policies.point_cloud_inputs import (
+    check_point_cloud_feature,
+    validate_point_cloud_fields,
+)
+from lerobot_actionflow.policies.wrist_focus import (
+    WRIST_FOCUS_THRESHOLD,
+    check_wrist_focus_features,
+    validate_wrist_focus_fields,
+)
 from lerobot_actionflow.schema import ACTION_DIM, ENV_STATE_KEY, STATE_KEY, image_key
 
 BACKBONES = ("transformer", "unet")
@@ -54,6 +64,20 @@ class EuclideanFlowConfig(PreTrainedConfig):
     Flow: ``a_t = t a_1 + (1 - t) a_0``, ``a_0 ~ N(0, I)``, target ``u = a_1 - a_0``, loss
     ``||v_theta(a_t, t, o) - u||^2``, ``t ~ U[0, 1]`` (or ``Beta``); sampling by ``K`` Euler
     steps on a uniform or exponentially spaced grid. The network sees ``time_embed_scale * t``.
+
+    Point clouds (``point_cloud_key``, e.g. ``observation.point_cloud``; None: off): each
+    observation step's cloud, in the world/base frame and metres (never normalised), goes
+    through a PointNet (:class:`lerobot_actionflow.nn.pointnet.PointNetEncoder`: shared MLP of
+    ``point_cloud_width`` units per point times ``point_cloud_scale``, max over the points, then
+    ``point_cloud_feature_dim`` features) whose output joins that step's conditioning. Nothing
+    is centred or rotated: this is the non-equivariant baseline.
+
+    ``use_environment_state=False`` ignores ``observation.environment_state`` (the object poses)
+    even when the dataset has it: a point-cloud policy then sees the objects only in the cloud.
+
+    Wrist focus (App. G.3): ``wrist_focus_camera``, ``wrist_focus_size``,
+    ``wrist_focus_threshold``, as in ``actionflow``
+    (:mod:`lerobot_actionflow.policies.wrist_focus`).
 
     Execution in real time (App. G; :mod:`lerobot_actionflow.policies.execution`), applied by
     ``select_action``, with the same fields and defaults as ``actionflow`` (no skipping, no
@@ -110,6 +134,20 @@ class EuclideanFlowConfig(PreTrainedConfig):
     use_group_norm: bool = True
     spatial_softmax_num_keypoints: int = 32
     use_separate_rgb_encoder_per_camera: bool = True
+
+    # False: ignore observation.environment_state (the object poses) even when the dataset has it,
+    # e.g. so that a point-cloud policy sees the objects only through the cloud.
+    use_environment_state: bool = True
+    # Point cloud (None: off): a PointNet global feature per observation step.
+    point_cloud_key: str | None = None
+    point_cloud_width: int = 128
+    point_cloud_feature_dim: int = 128
+    point_cloud_scale: float = 10.0
+
+    # App. G.3: black out the wrist image outside its centre once the gripper is closed.
+    wrist_focus_camera: str | None = None
+    wrist_focus_size: int = 30
+    wrist_focus_threshold: float = WRIST_FOCUS_THRESHOLD
 
     # Flow matching.
     train_time_distribution: str = "uniform"
@@ -205,6 +243,9 @@ class EuclideanFlowConfig(PreTrainedConfig):
         require(0 < self.crop_ratio <= 1.0, f"`crop_ratio` must be in (0, 1], got {self.crop_ratio}")
         require_ints(self, ("spatial_softmax_num_keypoints",))
         validate_execution_fields(self)
+        validate_point_cloud_fields(self, ("point_cloud_width", "point_cloud_feature_dim"))
+        require_positive(self, ("point_cloud_scale",))
+        validate_wrist_focus_fields(self)
 
     def get_optimizer_preset(self) -> AdamConfig:
         return AdamConfig(
@@ -224,13 +265,22 @@ class EuclideanFlowConfig(PreTrainedConfig):
                 f"euclidean_flow needs an output feature '{ACTION}' of shape (action_dim,), "
                 f"got {None if action is None else tuple(action.shape)}"
             )
-        if self.robot_state_feature is None and self.env_state_feature is None and not self.image_features:
+        check_point_cloud_feature(self.input_features, self.point_cloud_key, 1)
+        if (
+            self.robot_state_feature is None
+            and self.read_env_state_feature is None
+            and not self.image_features
+            and self.point_cloud_key is None
+        ):
             raise ValueError(
                 f"euclidean_flow needs at least one observation input: '{STATE_KEY}' (state_dim,), "
-                f"'{ENV_STATE_KEY}' (env_dim,) or '{image_key('<camera>')}' (3, H, W); "
-                f"got input features {sorted(self.input_features or {})}"
+                f"'{ENV_STATE_KEY}' (env_dim,), '{image_key('<camera>')}' (3, H, W) or a point cloud "
+                f"(point_cloud_key); got input features {sorted(self.input_features or {})}"
             )
+        check_wrist_focus_features(self)
         for key, ft in self.used_input_features.items():
+            if key == self.point_cloud_key:
+                continue  # checked above: (M, 3)
             if ft.type is FeatureType.VISUAL:
                 if len(ft.shape) != 3:
                     raise ValueError(
@@ -252,12 +302,20 @@ class EuclideanFlowConfig(PreTrainedConfig):
             raise ValueError(f"all camera images must have the same shape, got {sorted(shapes)}")
 
     @property
+    def read_env_state_feature(self):
+        """``observation.environment_state`` when the policy reads it (``use_environment_state``)."""
+        return self.env_state_feature if self.use_environment_state else None
+
+    @property
     def used_input_features(self) -> dict:
-        """The observation features the policy reads: state, environment state, images."""
+        """The observation features the policy reads: images, state, environment state, and the
+        point cloud when ``point_cloud_key`` is set."""
         used = {key: ft for key, ft in self.image_features.items()}
         for key, ft in (self.input_features or {}).items():
-            if ft is self.robot_state_feature or ft is self.env_state_feature:
+            if ft is self.robot_state_feature or (ft is self.read_env_state_feature and ft is not None):
                 used[key] = ft
+        if self.point_cloud_key is not None and self.point_cloud_key in (self.input_features or {}):
+            used[self.point_cloud_key] = self.input_features[self.point_cloud_key]
         return used
 
     @property

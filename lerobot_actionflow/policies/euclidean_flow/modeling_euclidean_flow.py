@@ -10,8 +10,9 @@ uniform or exponentially spaced grid (App. E), ``K`` network calls per chunk. ``
 spacing are read from the config at every call (or passed per call), so they change without
 retraining.
 
-Observations ``o``: per step, ``[state, image features, environment state]`` concatenated into
-``cond (B, S, D)`` (``S = n_obs_steps``); images go through LeRobot's ``DiffusionRgbEncoder``.
+Observations ``o``: per step, ``[state, image features, environment state, point-cloud feature]``
+concatenated into ``cond (B, S, D)`` (``S = n_obs_steps``); images go through LeRobot's
+``DiffusionRgbEncoder``, the point cloud (world frame) through a PointNet.
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ from torch import Tensor, nn
 from lerobot_actionflow.flow.euclidean import euler_sample, linear_path
 from lerobot_actionflow.flow.guidance import inpaint_sample_euclidean
 from lerobot_actionflow.flow.schedules import make_time_grid, sample_train_times
+from lerobot_actionflow.nn.pointnet import PointNetEncoder
 from lerobot_actionflow.policies.euclidean_flow.backbones import make_backbone
 from lerobot_actionflow.policies.euclidean_flow.configuration_euclidean_flow import EuclideanFlowConfig
 from lerobot_actionflow.policies.execution import (
@@ -48,14 +50,15 @@ class ObservationEncoder(nn.Module):
     """Observation steps -> conditioning features ``(B, S, D)``.
 
     Input batch: ``observation.state (B, S, d_s)``, ``observation.images (B, S, N, 3, H, W)``
-    (cameras stacked), ``observation.environment_state (B, S, d_e)``, each only if configured.
-    ``D = d_s + N * F + d_e`` with ``F`` the RGB encoder's feature size.
+    (cameras stacked), ``observation.environment_state (B, S, d_e)``, the point cloud
+    ``(B, S, M, 3)``, each only if configured. ``D = d_s + N * F + d_e + d_p`` with ``F`` the RGB
+    encoder's feature size and ``d_p`` the PointNet's.
     """
 
     def __init__(self, config: EuclideanFlowConfig):
         super().__init__()
         self.use_state = config.robot_state_feature is not None
-        self.use_env = config.env_state_feature is not None
+        self.use_env = config.read_env_state_feature is not None
         self.num_cameras = len(config.image_features)
         self.separate = config.use_separate_rgb_encoder_per_camera
         dim = config.robot_state_feature.shape[0] if self.use_state else 0
@@ -68,6 +71,12 @@ class ObservationEncoder(nn.Module):
                 self.rgb_encoder = DiffusionRgbEncoder(config)
                 feat = self.rgb_encoder.feature_dim
             dim += feat * self.num_cameras
+        self.point_cloud_key = config.point_cloud_key
+        if self.point_cloud_key is not None:
+            self.point_encoder = PointNetEncoder(
+                config.point_cloud_width, config.point_cloud_feature_dim, config.point_cloud_scale
+            )
+            dim += config.point_cloud_feature_dim
         self.feature_dim = dim
 
     def forward(self, batch: dict[str, Tensor]) -> Tensor:
@@ -84,6 +93,8 @@ class ObservationEncoder(nn.Module):
                 feats.append(self.rgb_encoder(images.flatten(0, 2)).reshape(b, s, -1))
         if self.use_env:
             feats.append(batch[OBS_ENV_STATE])
+        if self.point_cloud_key is not None:
+            feats.append(self.point_encoder(batch[self.point_cloud_key]))
         return torch.cat(feats, dim=-1)
 
 
@@ -114,10 +125,12 @@ class EuclideanFlowPolicy(StrictLoading, PreTrainedPolicy):
         self._smoother = TargetSmoother(self.config.target_smoothing)
         if self.config.robot_state_feature is not None:
             self._queues[OBS_STATE] = deque(maxlen=n)
-        if self.config.env_state_feature is not None:
+        if self.config.read_env_state_feature is not None:
             self._queues[OBS_ENV_STATE] = deque(maxlen=n)
         if self.config.image_features:
             self._queues[OBS_IMAGES] = deque(maxlen=n)
+        if self.config.point_cloud_key is not None:
+            self._queues[self.config.point_cloud_key] = deque(maxlen=n)
 
     # ----------------------------------------------------------------------------- input checks
     def _prepare(self, batch: dict[str, Tensor], with_time: bool) -> dict[str, Tensor]:

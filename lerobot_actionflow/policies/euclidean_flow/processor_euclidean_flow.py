@@ -3,7 +3,9 @@
 Pre: rename -> split a robot's flat observation into the dataset's features (``lerobot-rollout``;
 :mod:`lerobot_actionflow.robots.processor`) -> add batch dim -> device -> normalise (state,
 environment state and actions min-max to ``[-1, 1]``, images mean/std). Post: unnormalise
-actions -> CPU.
+actions -> CPU. The point cloud (``point_cloud_key``) is not normalised (metres); with
+``wrist_focus_camera`` set, :class:`~lerobot_actionflow.policies.wrist_focus.WristFocusStep` masks
+that camera's image before normalisation (App. G.3).
 
 Only the features the policy reads are normalised: other observation keys (for example
 ``observation.poses``, which is typed STATE by LeRobot) pass through untouched, explicitly
@@ -20,6 +22,7 @@ from lerobot.processor.factory import make_default_policy_processor_steps, make_
 from lerobot.processor.normalize_processor import NormalizerProcessorStep
 
 from lerobot_actionflow.policies.euclidean_flow.configuration_euclidean_flow import EuclideanFlowConfig
+from lerobot_actionflow.policies.wrist_focus import wrist_focus_steps
 from lerobot_actionflow.robots.processor import robot_observation_steps
 
 
@@ -32,8 +35,10 @@ def make_euclidean_flow_pre_post_processors(
 ]:
     """``(preprocessor, postprocessor)`` for ``config``, normalising with ``dataset_stats``."""
     s = make_default_policy_processor_steps(config, dataset_stats)
+    # The point cloud stays in metres: per-element statistics of an FPS-ordered cloud mean nothing.
+    used = {k: ft for k, ft in config.used_input_features.items() if k != config.point_cloud_key}
     normalize = NormalizerProcessorStep(
-        features={**config.used_input_features, **config.output_features},
+        features={**used, **config.output_features},
         norm_map=config.normalization_mapping,
         stats=dataset_stats,
     )
@@ -44,6 +49,7 @@ def make_euclidean_flow_pre_post_processors(
             *robot_observation_steps(config),
             s.add_batch_dim,
             s.to_device,
+            *wrist_focus_steps(config),
             normalize,
         ],
         output_steps=[s.unnormalize, s.to_cpu],

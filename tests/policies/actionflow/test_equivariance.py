@@ -154,7 +154,7 @@ def test_equivariance_check_fails_with_world_frame_noise():
     noise = se3_flow.draw_local_noise(4, policy.config.horizon, 0.1, generator=gen)
     r_d, p_d = _random_transform(gen, torch.float32)
 
-    def world_noise_sampler(obs_r, obs_p, scalars, images, nr, np_, ng, times):
+    def world_noise_sampler(obs_r, obs_p, scalars, images, nr, np_, ng, times, points=None):
         # Pretend the EEF sits at the world origin: the noise no longer moves with the scene.
         eye_r = torch.eye(3).expand_as(obs_r[:, :1, :1]).clone()
         obs_r, obs_p = obs_r.clone(), obs_p.clone()

@@ -1,0 +1,51 @@
+"""benchmarks/fig12_mug_hang.py: finished stages are not run again, the table has one row per
+policy and one column per hanger placement, and the point-cloud policies get their options."""
+
+import json
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
+import fig12_mug_hang as fig12
+
+
+def _finished_run(out: Path) -> None:
+    (out / "data" / "meta").mkdir(parents=True)
+    (out / "data" / "meta" / "info.json").write_text("{}")
+    cells = {}
+    for i, name in enumerate(("actionflow_pose", "actionflow_pc", "euclidean_flow_pc")):
+        (out / "train" / name / "checkpoints" / "last" / "pretrained_model").mkdir(parents=True)
+        cells[name] = {
+            v: {"pc_success": 10.0 * i + j, "n_episodes": 50} for j, v in enumerate(fig12.VARIANTS)
+        }
+    (out / "fig12_results.json").write_text(json.dumps({"timings": {"collect_s": 1.0}, "cells": cells}))
+
+
+def test_a_finished_run_only_writes_the_table(tmp_path, monkeypatch):
+    _finished_run(tmp_path)
+
+    def no_subprocess(*a, **k):
+        raise AssertionError(f"a finished stage ran again: {a}")
+
+    monkeypatch.setattr(fig12, "_run", no_subprocess)
+    assert fig12.main(["--output", str(tmp_path)]) == 0
+    table = (tmp_path / "fig12_table.md").read_text()
+    assert "| policy | MugHang_D0 | MugHang_Moved |" in table
+    assert "| euclidean_flow_pc | 20 (50) | 21 (50) |" in table
+    assert json.loads((tmp_path / "fig12_results.json").read_text())["timings"]["collect_s"] == 1.0
+
+
+def test_point_cloud_policies_read_the_cloud_and_not_the_object_poses(tmp_path):
+    specs = fig12.policies(fig12.argparse.Namespace(tiny_models=True, groups=8, group_size=4))
+    assert not specs["actionflow_pose"]["point_cloud"]
+    assert not any("point_cloud" in a for a in specs["actionflow_pose"]["args"])
+    for name in ("actionflow_pc", "euclidean_flow_pc"):
+        assert specs[name]["point_cloud"]
+        assert "--policy.point_cloud_key=observation.point_cloud" in specs[name]["args"]
+    assert "--policy.pose_entities=[0]" in specs["actionflow_pc"]["args"]
+    assert "--policy.use_environment_state=false" in specs["euclidean_flow_pc"]["args"]
+    with pytest.raises(SystemExit, match="unknown policies"):
+        _finished_run(tmp_path)
+        fig12.main(["--output", str(tmp_path), "--policies", "diffusion"])
