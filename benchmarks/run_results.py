@@ -27,6 +27,8 @@ store and the summaries): ``--study ablation`` (ActionFlow's defaults) or ``--st
 every IS of ``--inference-steps`` and every grid of ``--time-spacings``. Each evaluation is one
 cell of ``--results`` (default ``benchmarks/results/<task>.json``), written as it finishes; a
 rerun skips the cells and the training runs that exist. Prints mean +- std over seeds.
+``--cameras wrist,agentview --image-size 80`` records a second dataset with those cameras and
+trains and evaluates every setting on it (setting names get ``[cameras@size]``).
 
     python benchmarks/run_results.py --task Lift --study ablation --settings default,squash_off \
         --seeds 0,1,2 --steps 3000 --eval-every 1000 --inference-steps 2,10 --output /work/study/Lift
@@ -58,6 +60,16 @@ from lerobot_actionflow.demo import train_command
 
 POLICIES = ("actionflow", "euclidean_flow", "diffusion")
 REPO = Path(__file__).resolve().parents[1]
+#: With cameras, Diffusion Policy's ResNet18 starts from scratch like ActionFlow's (nothing is
+#: downloaded), with group norm as in its paper, and a random 72x72 crop of the 80x80 images (the
+#: 90 % ratio of its paper's 76 of 84).
+IMAGE_OVERRIDES = {
+    "diffusion": [
+        "--policy.pretrained_backbone_weights=null",
+        "--policy.use_group_norm=true",
+        "--policy.crop_shape=[72,72]",
+    ]
+}
 # Scene transforms of the generalisation table: name -> env overrides.
 SCENES = {
     "shift+yaw, objects only": [
@@ -93,14 +105,27 @@ def _sweep(
         _run(
             [sys.executable, "-m", "lerobot_actionflow.evaluation.sweep",
              f"--checkpoints=[{','.join(str(c) for c in checkpoints)}]",
-             "--env.type=actionflow", f"--env.task={task}", *extra,
+             "--env.type=actionflow", f"--env.task={task}", *_camera_env(args), *extra,
              *([f"--env.episode_length={args.episode_length}"] if args.episode_length else []),
              f"--inference_steps=[{','.join(map(str, steps))}]",
              f"--eval.n_episodes={args.eval_episodes}", f"--eval.batch_size={args.eval_batch_size}",
+             f"--eval.use_async_envs={str(args.eval_async).lower()}",
              f"--seed={args.eval_seed}", "--device=cpu", f"--output_dir={out}"],
             env, out / "sweep.log",
         )  # fmt: skip
     return json.loads(result.read_text())
+
+
+def _camera_env(args) -> list[str]:
+    """The evaluation env's camera flags matching the recorded dataset (none without cameras)."""
+    if not getattr(args, "cameras", ""):
+        return []
+    size = args.image_size
+    return [
+        f"--env.cameras={args.cameras}",
+        f"--env.observation_height={size}",
+        f"--env.observation_width={size}",
+    ]
 
 
 def _train(run: Path, policy: str, overrides: list[str], seed: int, save_freq: int, data, repo_id, args, env):
@@ -150,11 +175,15 @@ def run_study(args, env: dict, data: Path, repo_id: str) -> int:
     eval_tasks = [args.task, *[v for v in args.variants.split(",") if v]]
     store = ResultStore(args.results or REPO / "benchmarks" / "results" / f"{args.task}.json", args.task)
     out = args.output.resolve()
-    for name in names:
-        setting = settings[name]
+    for base in names:
+        setting = settings[base]
+        name = f"{base}[{args.cameras}@{args.image_size}]" if args.cameras else base
         for seed in seeds:
-            run = out / args.study / name / f"seed{seed}"
+            folder = name.replace("[", "_").replace("@", "_").replace("]", "").replace(",", "_")
+            run = out / args.study / folder / f"seed{seed}"
             overrides = list(setting.overrides)
+            if args.cameras:
+                overrides += IMAGE_OVERRIDES.get(setting.policy, [])
             _train(run, setting.policy, overrides, seed, args.eval_every, data, repo_id, args, env)
             info = run / "train_wall_s.json"
             train_wall = json.loads(info.read_text())["train_wall_s"] if info.exists() else None
@@ -172,7 +201,7 @@ def run_study(args, env: dict, data: Path, repo_id: str) -> int:
                         ]  # fmt: skip
                         if not todo:
                             continue
-                        where = out / "eval" / args.study / name / f"seed{seed}" / f"step{step}"
+                        where = out / "eval" / run.relative_to(out) / f"step{step}"
                         where = where / eval_task / spacing
                         if where.exists():
                             import shutil
@@ -190,7 +219,8 @@ def run_study(args, env: dict, data: Path, repo_id: str) -> int:
                                     "pc_success": row["pc_success"], "eval_s": row["eval_s"],
                                     "train_steps": args.steps, "batch_size": args.batch_size, "lr": args.lr,
                                     "preset": args.preset, "train_wall_s": train_wall,
-                                    "demos": args.episodes,
+                                    "demos": args.episodes, "cameras": args.cameras,
+                                    "image_size": args.image_size if args.cameras else None,
                                     "episode_length": args.episode_length,
                                     "date": time.strftime("%Y-%m-%d", time.gmtime()),
                                 }
@@ -232,6 +262,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--eval-batch-size", type=int, default=10)
     ap.add_argument("--eval-seed", type=int, default=1000)
     ap.add_argument(
+        "--eval-async",
+        action=argparse.BooleanOptionalAction,
+        default=False,
+        help="one process per evaluation env (about 1 GB each) instead of all envs in one process",
+    )
+    ap.add_argument(
         "--episode-length", type=int, default=None, help="evaluation episode cap (default: the task's)"
     )
     ap.add_argument("--plot", type=Path, default=None, help="write the IS sweep as a PNG here")
@@ -247,20 +283,29 @@ def main(argv: list[str] | None = None) -> int:
     study.add_argument(
         "--results", type=Path, default=None, help="cell store (default benchmarks/results/<task>.json)"
     )
+    study.add_argument(
+        "--cameras", default="", help="record, train and evaluate with these cameras (e.g. wrist,agentview)"
+    )
+    study.add_argument("--image-size", type=int, default=80, help="square camera images (pixels)")
     args = ap.parse_args(argv)
 
     out = args.output.resolve()
     env = {**os.environ, "HF_HUB_OFFLINE": "1", "WANDB_MODE": "disabled", "OMP_NUM_THREADS": "1"}
     env.setdefault("MUJOCO_GL", "egl")
     data, repo_id = out / "data", f"local/{args.task.lower()}_results"
+    images = []
+    if args.cameras:
+        tag = f"{args.cameras.replace(',', '_')}_{args.image_size}"
+        data, repo_id = out / f"data_{tag}", f"{repo_id}_{tag}"
+        images = ["--images", "--cameras", args.cameras, "--image-size", str(args.image_size)]
     timings: dict[str, float] = {}
 
     if not (data / "meta" / "info.json").exists():
         start = time.perf_counter()
         _run(
             [_bin("actionflow-collect"), "--task", args.task, "--episodes", str(args.episodes),
-             "--root", str(data), "--repo-id", repo_id, "--seed", str(args.seed)],
-            env, out / "logs" / "collect.log",
+             "--root", str(data), "--repo-id", repo_id, "--seed", str(args.seed), *images],
+            env, out / "logs" / f"collect{'_' + tag if images else ''}.log",
         )  # fmt: skip
         timings["collect_s"] = time.perf_counter() - start
 
