@@ -19,6 +19,7 @@ from lerobot_actionflow.policies.config_errors import (
     require_probability,
 )
 from lerobot_actionflow.policies.execution import validate_execution_fields
+from lerobot_actionflow.policies.flow_options import validate_train_time_fields
 from lerobot_actionflow.policies.point_cloud_inputs import (
     check_point_cloud_feature,
     validate_point_cloud_fields,
@@ -83,7 +84,9 @@ class ActionflowConfig(PreTrainedConfig):
             ``Exp(noise_kappa * eps)``).
         num_inference_steps [4]: Euler steps K; may be changed at inference time.
         time_spacing: ``"uniform"`` or ``"exponential"`` (App. E), with ``time_spacing_rate``.
-        train_time_distribution: ``"uniform"`` or ``"beta"`` (``train_time_beta``).
+        train_time_distribution: ``"uniform"``, ``"beta"`` (``train_time_beta``) or
+            ``"logit_normal"`` (``t = sigmoid(N(mean, std^2))``, ``train_time_logit_normal`` =
+            ``(mean, std)``).
         loss_weight_*: weights of the translation / rotation / gripper velocity errors.
         image_size [80x80], image_encoder_weights: ResNet18 input size and an optional local
             weights file (never downloaded).
@@ -163,6 +166,7 @@ class ActionflowConfig(PreTrainedConfig):
     time_spacing_rate: float = 2.0
     train_time_distribution: str = "uniform"
     train_time_beta: tuple[float, float] = (1.5, 1.0)
+    train_time_logit_normal: tuple[float, float] = (0.0, 1.0)
 
     loss_weight_translation: float = 1.0
     loss_weight_rotation: float = 1.0
@@ -230,11 +234,7 @@ class ActionflowConfig(PreTrainedConfig):
         require_ints(self, ("num_inference_steps",))
         require_choice(self, "time_spacing", ("uniform", "exponential"))
         require_positive(self, ("time_spacing_rate",))
-        require_choice(self, "train_time_distribution", ("uniform", "beta"))
-        require(
-            len(self.train_time_beta) == 2 and all(b > 0 for b in self.train_time_beta),
-            f"`train_time_beta` must be two numbers > 0, got {self.train_time_beta!r}",
-        )
+        validate_train_time_fields(self)
         weights = ("loss_weight_translation", "loss_weight_rotation", "loss_weight_gripper")
         require_non_negative(self, weights)
         require(any(getattr(self, w) > 0 for w in weights), f"at least one of {weights} must be > 0")

@@ -140,8 +140,9 @@ class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
         )  # fmt: skip
         x0 = se3_flow.noise_to_world(noise, encoded.r_ref, encoded.p_ref)
         t = schedules.sample_train_times(
-            b, cfg.train_time_distribution, cfg.train_time_beta, dtype=action.dtype, device=action.device
-        )
+            b, cfg.train_time_distribution, cfg.train_time_beta, dtype=action.dtype, device=action.device,
+            logit_normal=cfg.train_time_logit_normal,
+        )  # fmt: skip
         x_t, u_t = se3_flow.geodesic_path(x0, x1, t)
         pred = self.network.velocity(encoded, x_t, t)
 

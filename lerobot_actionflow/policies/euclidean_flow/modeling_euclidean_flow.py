@@ -178,6 +178,7 @@ class EuclideanFlowPolicy(StrictLoading, PreTrainedPolicy):
             a1.shape[0],
             self.config.train_time_distribution,
             beta=self.config.train_time_beta,
+            logit_normal=self.config.train_time_logit_normal,
             dtype=a1.dtype,
             device=a1.device,
         )
