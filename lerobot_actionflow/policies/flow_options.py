@@ -1,5 +1,6 @@
 """Validation of the flow-matching options both policy configs share: the training-time
-distribution and the ODE solver (:mod:`lerobot_actionflow.flow.schedules`)."""
+distribution and the ODE solver (:mod:`lerobot_actionflow.flow.schedules`), and the solver's
+limits at sampling time."""
 
 from __future__ import annotations
 
@@ -29,3 +30,14 @@ def validate_train_time_fields(config: Any) -> None:
 def validate_solver_field(config: Any) -> None:
     """``solver`` in :data:`SOLVERS`."""
     require_choice(config, "solver", SOLVERS)
+
+
+def check_rtc_solver(solver: str) -> None:
+    """Real-time chunking guidance (:mod:`lerobot_actionflow.flow.guidance`) steers Euler steps;
+    refuse it with another solver rather than silently integrate differently."""
+    if solver != "euler":
+        raise ValueError(
+            f"real-time chunking (prev_chunk_left_over) integrates with Euler steps, but the policy's "
+            f"solver is {solver!r}: set --policy.solver=euler (with twice the num_inference_steps for "
+            "the same network calls) to use RTC"
+        )

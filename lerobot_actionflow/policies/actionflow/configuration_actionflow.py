@@ -19,7 +19,7 @@ from lerobot_actionflow.policies.config_errors import (
     require_probability,
 )
 from lerobot_actionflow.policies.execution import validate_execution_fields
-from lerobot_actionflow.policies.flow_options import validate_train_time_fields
+from lerobot_actionflow.policies.flow_options import validate_solver_field, validate_train_time_fields
 from lerobot_actionflow.policies.point_cloud_inputs import (
     check_point_cloud_feature,
     validate_point_cloud_fields,
@@ -82,7 +82,11 @@ class ActionflowConfig(PreTrainedConfig):
         noise_sigma: std of the initial translation noise around the EEF (metres).
         noise_rotation: ``"uniform"`` or ``"concentrated"`` (around the EEF orientation,
             ``Exp(noise_kappa * eps)``).
-        num_inference_steps [4]: Euler steps K; may be changed at inference time.
+        num_inference_steps [4]: integration steps K; may be changed at inference time.
+        solver: ``"euler"`` [Eq. 8] or ``"midpoint"`` (second-order Runge-Kutta-Munthe-Kaas on
+            SE(3), :func:`lerobot_actionflow.flow.se3.midpoint_step`). Network calls per chunk:
+            K with Euler, 2K with midpoint (``evaluation.sweep`` counts calls, so IS = 2K there).
+            Real-time chunking guidance integrates with Euler and refuses ``"midpoint"``.
         time_spacing: ``"uniform"`` or ``"exponential"`` (App. E), with ``time_spacing_rate``.
         train_time_distribution: ``"uniform"``, ``"beta"`` (``train_time_beta``) or
             ``"logit_normal"`` (``t = sigmoid(N(mean, std^2))``, ``train_time_logit_normal`` =
@@ -162,6 +166,7 @@ class ActionflowConfig(PreTrainedConfig):
     noise_rotation: str = "uniform"
     noise_kappa: float = 0.5
     num_inference_steps: int = 4
+    solver: str = "euler"
     time_spacing: str = "uniform"
     time_spacing_rate: float = 2.0
     train_time_distribution: str = "uniform"
@@ -235,6 +240,7 @@ class ActionflowConfig(PreTrainedConfig):
         require_choice(self, "time_spacing", ("uniform", "exponential"))
         require_positive(self, ("time_spacing_rate",))
         validate_train_time_fields(self)
+        validate_solver_field(self)
         weights = ("loss_weight_translation", "loss_weight_rotation", "loss_weight_gripper")
         require_non_negative(self, weights)
         require(any(getattr(self, w) > 0 for w in weights), f"at least one of {weights} must be > 0")

@@ -5,8 +5,8 @@ EEF frame, a time ``t``, the point on the geodesic path and its local target vel
 regress the network's velocities onto them (translation errors in units of
 ``1 / translation_scale`` metres, so that the three terms have similar size).
 
-Sampling (Alg. 2): ``K`` Euler steps on SE(3) from ``q0``; the chunk is returned as absolute
-EEF targets ``[x, y, z, rot6d, gripper]``.
+Sampling (Alg. 2): ``K`` Euler (or midpoint, ``solver``) steps on SE(3) from ``q0``; the chunk is
+returned as absolute EEF targets ``[x, y, z, rot6d, gripper]``.
 """
 
 from __future__ import annotations
@@ -38,6 +38,7 @@ from lerobot_actionflow.policies.execution import (
     rtc_guidance,
     timed,
 )
+from lerobot_actionflow.policies.flow_options import check_rtc_solver
 from lerobot_actionflow.policies.inputs import check_num_inference_steps, check_observation
 from lerobot_actionflow.policies.loading import StrictLoading
 from lerobot_actionflow.schema import ACTION_DIM, ACTION_KEY, POSES_KEY, STATE_KEY
@@ -190,7 +191,8 @@ class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
                 own history, as :meth:`select_action` does (an observation equal to the newest
                 one is not appended twice).
             noise: initial noise in the EEF frame (drawn if None).
-            num_inference_steps: Euler steps K >= 1 (default: the config's); no retraining needed.
+            num_inference_steps: integration steps K >= 1 (default: the config's; ``2K`` network
+                calls with ``solver="midpoint"``); no retraining needed.
             inference_delay, prev_chunk_left_over, execution_horizon: real-time chunking (LeRobot's
                 RTC engine). ``prev_chunk_left_over`` ``(T, 10)`` or ``(B, T, 10)``: the previous
                 chunk's actions not executed yet, action ``i`` due at the step of this chunk's
@@ -202,12 +204,14 @@ class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
             **kwargs: other keywords LeRobot's inference engines may pass; unused.
 
         Raises:
-            ValueError: a bad observation (:meth:`check_observation`), K < 1, or a bad leftover.
+            ValueError: a bad observation (:meth:`check_observation`), K < 1, a bad leftover, or
+                a leftover with ``solver="midpoint"`` (the guidance integrates with Euler).
         """
         obs = self._observation_history(batch)
         rtc = rtc_config_of(self.config)
         if prev_chunk_left_over is None or rtc is None:
             return self._predict(obs, noise, num_inference_steps)
+        check_rtc_solver(self.config.solver)
         guide = rtc_guidance(
             prev_chunk_left_over.to(self._dtype),
             inference_delay,
@@ -425,13 +429,15 @@ class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
         encoded = self.network.encode_observations(obs)
         noise = se3_flow.LocalNoise(noise_r, noise_p, noise_g)
         x0 = se3_flow.noise_to_world(noise, encoded.r_ref, encoded.p_ref)
-        # Every flow time of the chunk is known: condition all K steps with one call per block.
-        shifts = self.network.time_shifts(times[:-1])  # depth x (K, C)
+        # Every flow time of the chunk is known: condition all K (Euler) or 2K (midpoint)
+        # evaluations with one call per block.
+        solver = self.config.solver
+        shifts = self.network.time_shifts(schedules.evaluation_times(times, solver))  # depth x (E, C)
 
-        def velocity(x: se3_flow.PoseChunk, k: int) -> se3_flow.PoseVelocity:
-            return self.network.velocity(encoded, x, shifts=[s[k : k + 1] for s in shifts])
+        def velocity(x: se3_flow.PoseChunk, j: int) -> se3_flow.PoseVelocity:
+            return self.network.velocity(encoded, x, shifts=[s[j : j + 1] for s in shifts])
 
-        x1 = se3_flow.euler_sample(velocity, x0, times)
+        x1 = se3_flow.sample(velocity, x0, times, solver)
         return pose_to_action(x1.r, x1.p, x1.g.clamp(-1.0, 1.0))
 
     def check_observation(self, batch: dict[str, Tensor], with_time: bool = True) -> dict[str, Tensor]:
