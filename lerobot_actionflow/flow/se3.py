@@ -143,10 +143,27 @@ def geodesic_path(x0: PoseChunk, x1: PoseChunk, t: torch.Tensor) -> PathSample:
 
 def euler_step(x: PoseChunk, v: PoseVelocity, dt: torch.Tensor | float) -> PoseChunk:
     """One step of Eq. (8) on SE(3) and a Euclidean step on the gripper:
-    ``p <- p + r v_p dt``, ``r <- r Exp(v_r dt)``, ``g <- g + v_g dt``."""
-    p = x.p + dt * (x.r @ v.p[..., None]).squeeze(-1)
-    r = x.r @ so3.exp(dt * v.r)
-    return PoseChunk(r, p, x.g + dt * v.g)
+    ``p <- p + r v_p dt``, ``r <- r Exp(v_r dt)``, ``g <- g + v_g dt``; ``dt`` a scalar, or
+    ``(B,)`` (one step size per sample)."""
+    dt = torch.as_tensor(dt, dtype=x.p.dtype, device=x.p.device)
+    dg = dt[:, None] if dt.ndim == 1 else dt
+    dp = dg[..., None]
+    p = x.p + dp * (x.r @ v.p[..., None]).squeeze(-1)
+    r = x.r @ so3.exp(dp * v.r)
+    return PoseChunk(r, p, x.g + dg * v.g)
+
+
+def velocity_between(x: PoseChunk, y: PoseChunk, h: torch.Tensor | float) -> PoseVelocity:
+    """The constant local velocity whose Euler step of size ``h`` from ``x`` lands on ``y``:
+    ``v_r = Log(r_x^T r_y) / h``, ``v_p = r_x^T (p_y - p_x) / h``, ``v_g = (g_y - g_x) / h``
+    (``h`` a scalar, or ``(B,)`` per sample). Only relative quantities: invariant under a rigid
+    transform of both poses."""
+    h = torch.as_tensor(h, dtype=x.p.dtype, device=x.p.device)
+    hg = h[:, None] if h.ndim == 1 else h
+    hp = hg[..., None]
+    v_r = so3.log(x.r.transpose(-1, -2) @ y.r) / hp
+    v_p = (x.r.transpose(-1, -2) @ (y.p - x.p)[..., None]).squeeze(-1) / hp
+    return PoseVelocity(v_r, v_p, (y.g - x.g) / hg)
 
 
 def euler_sample(velocity: VelocityField, x0: PoseChunk, times: torch.Tensor) -> PoseChunk:

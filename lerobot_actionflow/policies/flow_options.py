@@ -8,6 +8,7 @@ import math
 from typing import Any
 
 from lerobot_actionflow.flow.schedules import SOLVERS, TRAIN_TIME_DISTRIBUTIONS
+from lerobot_actionflow.flow.shortcut import check_max_steps
 from lerobot_actionflow.policies.config_errors import require, require_choice
 
 
@@ -30,6 +31,47 @@ def validate_train_time_fields(config: Any) -> None:
 def validate_solver_field(config: Any) -> None:
     """``solver`` in :data:`SOLVERS`."""
     require_choice(config, "solver", SOLVERS)
+
+
+#: Few-step training objectives (``few_step_objective``).
+FEW_STEP_OBJECTIVES = ("none", "shortcut")
+
+
+def validate_few_step_fields(config: Any) -> None:
+    """``few_step_objective`` in :data:`FEW_STEP_OBJECTIVES`, ``shortcut_fraction`` in (0, 1],
+    ``shortcut_max_steps`` a power of two >= 2; the shortcut objective samples with the Euler
+    solver on the uniform grid (:func:`check_shortcut_sampling`)."""
+    require_choice(config, "few_step_objective", FEW_STEP_OBJECTIVES)
+    f = config.shortcut_fraction
+    require(
+        isinstance(f, (int, float)) and not isinstance(f, bool) and 0 < f <= 1,
+        f"`shortcut_fraction` must be in (0, 1], got {f!r}",
+    )
+    try:
+        check_max_steps(config.shortcut_max_steps)
+    except ValueError:
+        require(False, f"`shortcut_max_steps` must be a power of two >= 2, got {config.shortcut_max_steps!r}")
+    try:
+        check_shortcut_sampling(config)
+    except ValueError as e:
+        require(False, str(e))
+
+
+def check_shortcut_sampling(config: Any) -> None:
+    """A shortcut model is trained for uniform steps of size ``1/K`` taken by Euler: refuse
+    another grid or solver (also at sampling time, since both can change after training)."""
+    if config.few_step_objective != "shortcut":
+        return
+    if config.time_spacing != "uniform":
+        raise ValueError(
+            f"few_step_objective='shortcut' samples on the uniform time grid (steps of 1/K), got "
+            f"time_spacing={config.time_spacing!r}: set --policy.time_spacing=uniform"
+        )
+    if config.solver != "euler":
+        raise ValueError(
+            f"few_step_objective='shortcut' takes Euler steps of its conditioned size, got "
+            f"solver={config.solver!r}: set --policy.solver=euler"
+        )
 
 
 def check_rtc_solver(solver: str) -> None:

@@ -73,6 +73,7 @@ SAMPLER_INDEPENDENT_FIELDS = frozenset(
         "train_time_distribution",
         "train_time_beta",
         "train_time_logit_normal",
+        "shortcut_fraction",
         "loss_weight_translation",
         "loss_weight_rotation",
         "loss_weight_gripper",
