@@ -133,3 +133,16 @@ def test_shortcut_equivariance_check_fails_with_a_non_invariant_layer(trained_sh
         assert _sampling_error(trained_shortcut_policy, 7) > 1e-2
     finally:
         trained_shortcut_policy.network.adaptation = good
+
+
+def test_a_shortcut_checkpoint_reloads_with_its_step_size_embedding(trained_shortcut_policy, tmp_path):
+    trained_shortcut_policy.save_pretrained(tmp_path)
+    loaded = ActionflowPolicy.from_pretrained(tmp_path).eval()
+    assert loaded.config.few_step_objective == "shortcut" and loaded.network.step_size_embed is not None
+    gen = torch.Generator().manual_seed(8)
+    batch = {k: v for k, v in random_batch(loaded.config, 2, gen).items() if k != "action"}
+    noise = se3_flow.draw_local_noise(2, loaded.config.horizon, 0.1, generator=gen)
+    torch.testing.assert_close(
+        loaded.predict_action_chunk(batch, noise=noise, num_inference_steps=2),
+        trained_shortcut_policy.predict_action_chunk(batch, noise=noise, num_inference_steps=2),
+    )
