@@ -80,6 +80,27 @@ ABLATIONS: dict[str, Setting] = {
         ("--policy.dim=128", "--policy.num_layers=4", "--policy.num_heads=8", "--policy.head_dim=16"),
         "the paper's size (width 128, 4 IPA layers, 8 heads)",
     ),
+    # Few-step accuracy (issue #21).
+    "time_logit_normal": Setting(
+        "actionflow",
+        ("--policy.train_time_distribution=logit_normal",),
+        "training times sigmoid(N(0, 1)): more weight mid-path, less at the ends",
+    ),
+    "noise_concentrated": Setting(
+        "actionflow",
+        ("--policy.noise_rotation=concentrated",),
+        "initial rotations Exp(0.5 eps) around the EEF instead of uniform on SO(3): a less curved flow",
+    ),
+    "solver_midpoint": Setting(
+        "actionflow",
+        ("--policy.solver=midpoint",),
+        "trains like default; samples with SE(3) midpoint steps (2 calls per step: even IS only)",
+    ),
+    "shortcut": Setting(
+        "actionflow",
+        ("--policy.few_step_objective=shortcut",),
+        "shortcut self-consistency on 1/4 of each batch, step size 1/K at sampling (uniform grid only)",
+    ),
 }
 
 #: The converged comparison (issue #17, part 2): the three policies at the CPU size.

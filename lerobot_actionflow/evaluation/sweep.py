@@ -5,7 +5,8 @@ evaluation machinery (``make_env``, ``make_policy``, ``make_pre_post_processors`
 ``eval_policy`` from ``lerobot_eval``); only the number of network calls per chunk changes:
 
 - ``actionflow`` and ``euclidean_flow``: ``K = IS`` Euler steps (on SE(3) x R for actionflow, in
-  R^n for euclidean_flow; grid spacing from the checkpoint, or ``--time_spacing``);
+  R^n for euclidean_flow; grid spacing from the checkpoint, or ``--time_spacing``), or
+  ``K = IS / 2`` midpoint steps when the checkpoint's config has ``solver="midpoint"`` (even IS only);
 - ``diffusion`` (LeRobot's Diffusion Policy): DDIM with IS steps for ``IS < num_train_timesteps``,
   DDPM when ``IS == num_train_timesteps`` (the paper's protocol; 100 by default).
 
@@ -36,6 +37,8 @@ import numpy as np
 from lerobot.configs.default import EvalConfig
 from lerobot.envs.configs import EnvConfig
 
+from lerobot_actionflow.flow.schedules import network_calls
+
 
 @dataclass
 class SweepConfig:
@@ -58,7 +61,9 @@ class SweepConfig:
 def set_inference_steps(policy, num_steps: int, time_spacing: str | None = None) -> str:
     """Make ``policy`` spend ``num_steps`` network calls per chunk; returns the sampler's name.
 
-    ``actionflow`` / ``euclidean_flow``: ``num_steps`` Euler steps. ``diffusion``: DDIM with
+    ``actionflow`` / ``euclidean_flow``: ``K = num_steps`` steps with ``solver="euler"``; with
+    ``solver="midpoint"`` (two calls per step) ``K = num_steps / 2``, and an odd ``num_steps`` is
+    refused. The name is ``<solver>-<time spacing>``. ``diffusion``: DDIM with
     ``num_steps`` steps, or DDPM when ``num_steps`` equals the trained ``num_train_timesteps`` (built from the
     trained noise schedule with ``from_config``, so betas and clipping are unchanged).
     """
@@ -66,10 +71,17 @@ def set_inference_steps(policy, num_steps: int, time_spacing: str | None = None)
         raise ValueError(f"the number of inference steps must be an integer >= 1, got {num_steps!r}")
     kind = policy.config.type
     if kind in ("euclidean_flow", "actionflow"):
-        policy.config.num_inference_steps = num_steps
+        solver = getattr(policy.config, "solver", "euler")
+        calls_per_step = network_calls(1, solver)
+        if num_steps % calls_per_step:
+            raise ValueError(
+                f"{num_steps} inference steps (network calls) with solver={solver!r}, which calls the "
+                f"network {calls_per_step} times per integration step: use a multiple of {calls_per_step}"
+            )
+        policy.config.num_inference_steps = num_steps // calls_per_step
         if time_spacing is not None:
             policy.config.time_spacing = time_spacing
-        return f"euler-{policy.config.time_spacing}"
+        return f"{solver}-{policy.config.time_spacing}"
     if kind == "diffusion":
         from diffusers import DDIMScheduler, DDPMScheduler
 

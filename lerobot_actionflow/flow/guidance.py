@@ -36,7 +36,7 @@ from collections.abc import Callable
 
 import torch
 
-from lerobot_actionflow.flow.se3 import PoseChunk, PoseVelocity, VelocityField, euler_step
+from lerobot_actionflow.flow.se3 import PoseChunk, PoseVelocity, VelocityField, euler_step, velocity_between
 from lerobot_actionflow.geometry import so3
 
 
@@ -70,10 +70,7 @@ def denoised_estimate(x: PoseChunk, v: PoseVelocity, t: torch.Tensor) -> PoseChu
 
 def velocity_toward(x: PoseChunk, goal: PoseChunk, t: torch.Tensor) -> PoseVelocity:
     """The local velocity whose Euler step from ``x`` at time ``t`` to ``t = 1`` lands on ``goal``."""
-    h = 1 - t
-    v_r = so3.log(x.r.transpose(-1, -2) @ goal.r) / h
-    v_p = (x.r.transpose(-1, -2) @ (goal.p - x.p)[..., None]).squeeze(-1) / h
-    return PoseVelocity(v_r, v_p, (goal.g - x.g) / h)
+    return velocity_between(x, goal, 1 - t)
 
 
 def guided_velocity(

@@ -10,6 +10,14 @@ where the sample must become precise):
 
 so ``dt_k`` shrinks geometrically by ``exp(-lambda / K)`` per step; ``lambda -> 0`` recovers the
 uniform grid ``t_k = k / K``.
+
+Training-time distributions (:func:`sample_train_times`): ``U[0, 1]``, ``Beta(a, b)``, and the
+logit-normal ``t = sigmoid(z)``, ``z ~ N(mean, std^2)`` (density
+``phi((logit t - mean) / std) / (std t (1 - t))``: mean 0 puts the mass at mid-path, a positive
+mean moves it toward the data end ``t = 1``).
+
+Solvers (:func:`evaluation_times`): ``"euler"`` evaluates the network once per step, at the
+step's start; ``"midpoint"`` twice, at the start and at the half step.
 """
 
 from __future__ import annotations
@@ -51,6 +59,12 @@ def make_time_grid(
     raise ValueError(f"unknown time spacing {spacing!r}: expected 'uniform' or 'exponential'")
 
 
+#: Training-time distributions of :func:`sample_train_times`.
+TRAIN_TIME_DISTRIBUTIONS = ("uniform", "beta", "logit_normal")
+#: ODE solvers of the samplers (``flow.se3.sample``, ``flow.euclidean.sample``).
+SOLVERS = ("euler", "midpoint")
+
+
 def sample_train_times(
     batch_size: int,
     distribution: str = "uniform",
@@ -58,8 +72,18 @@ def sample_train_times(
     generator: torch.Generator | None = None,
     dtype=torch.float32,
     device=None,
+    logit_normal: tuple[float, float] = (0.0, 1.0),
 ) -> torch.Tensor:
-    """Training times ``(B,)``: ``U[0, 1]`` or ``Beta(a, b)`` (``a > b`` favours ``t`` near 1)."""
+    """Training times ``(B,)``: ``U[0, 1]``, ``Beta(a, b)`` (``a > b`` favours ``t`` near 1), or
+    ``sigmoid(N(mean, std^2))`` with ``logit_normal = (mean, std)`` (in the open interval (0, 1))."""
+    if distribution == "logit_normal":
+        mean, std = (float(x) for x in logit_normal)
+        if not (math.isfinite(mean) and math.isfinite(std) and std > 0):
+            raise ValueError(
+                f"logit-normal training times need a finite mean and std > 0, got {logit_normal}"
+            )
+        z = torch.randn(batch_size, generator=generator, dtype=dtype, device=device)
+        return torch.sigmoid(mean + std * z)
     if distribution == "uniform":
         return torch.rand(batch_size, generator=generator, dtype=dtype, device=device)
     if distribution == "beta":
@@ -69,7 +93,29 @@ def sample_train_times(
             raise ValueError("Beta training times use the global torch RNG; pass generator=None")
         a, b = (torch.tensor(float(x)) for x in beta)
         return torch.distributions.Beta(a, b).sample((batch_size,)).to(dtype=dtype, device=device)
-    raise ValueError(f"unknown training time distribution {distribution!r}: expected 'uniform' or 'beta'")
+    raise ValueError(
+        f"unknown training time distribution {distribution!r}: expected one of {TRAIN_TIME_DISTRIBUTIONS}"
+    )
+
+
+def evaluation_times(times: torch.Tensor, solver: str = "euler") -> torch.Tensor:
+    """The flow times at which a solver evaluates the network over the grid ``times`` ``(K + 1,)``,
+    in call order: ``t_0 .. t_{K-1}`` (``"euler"``, ``K`` calls) or
+    ``t_0, t_0 + dt_0 / 2, t_1, t_1 + dt_1 / 2, ..`` (``"midpoint"``, ``2K`` calls). A sampler
+    precomputes the network's time conditioning for all of them at once."""
+    if solver == "euler":
+        return times[:-1]
+    if solver == "midpoint":
+        start = times[:-1]
+        return torch.stack((start, 0.5 * (start + times[1:])), -1).reshape(-1)
+    raise ValueError(f"unknown solver {solver!r}: expected one of {SOLVERS}")
+
+
+def network_calls(num_steps: int, solver: str = "euler") -> int:
+    """Network evaluations per chunk for ``num_steps`` integration steps: ``K`` or ``2K``."""
+    if solver not in SOLVERS:
+        raise ValueError(f"unknown solver {solver!r}: expected one of {SOLVERS}")
+    return num_steps * (2 if solver == "midpoint" else 1)
 
 
 def _check_steps(num_steps: int) -> None:

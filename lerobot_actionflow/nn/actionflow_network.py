@@ -84,6 +84,12 @@ class EncodedObservations:
     center: torch.Tensor
     context: list[tuple[torch.Tensor, torch.Tensor]] = field(default_factory=list)
 
+    def first(self, n: int) -> EncodedObservations:
+        """The encoding of the first ``n`` samples of the batch."""
+        return EncodedObservations(
+            self.r_ref[:n], self.p_ref[:n], self.center[:n], [(k[:n], v[:n]) for k, v in self.context]
+        )
+
 
 class ActionFlowNetwork(nn.Module):
     def __init__(
@@ -103,6 +109,7 @@ class ActionFlowNetwork(nn.Module):
         point_groups: int = 0,
         point_group_size: int = 16,
         point_width: int = 64,
+        step_size_conditioning: bool = False,
     ):
         super().__init__()
         if translation_frame not in TRANSLATION_FRAMES:
@@ -127,6 +134,9 @@ class ActionFlowNetwork(nn.Module):
             self.camera_embed = nn.Parameter(torch.randn(len(self.camera_entities), dim) * 0.02)
             self.image_proj = nn.Linear(image_feature_dim, dim)
         self.time_embed = SinusoidalTimeEmbedding(dim)
+        # The step size d of a few-step objective (flow.shortcut), added to the time embedding;
+        # absent (no parameters) without one.
+        self.step_size_embed = SinusoidalTimeEmbedding(dim) if step_size_conditioning else None
         self.transformer = SE3InvariantTransformer(size, depth, mlp_ratio, dropout)
         self.head = nn.Sequential(nn.LayerNorm(dim), nn.Linear(dim, 7))
         # Point-cloud group tokens (point_groups = G > 0).
@@ -187,9 +197,19 @@ class ActionFlowNetwork(nn.Module):
         r = torch.cat((r, r_ref[:, None].expand(-1, g, -1, -1)), 1)
         return f, r, torch.cat((p, centres), 1)
 
-    def time_shifts(self, t: torch.Tensor) -> list[torch.Tensor]:
-        """Per-block time conditioning for flow times ``t (N,)``: ``depth x (N, C)``."""
-        return self.transformer.time_shifts(self.time_embed(t))
+    def time_shifts(self, t: torch.Tensor, d: torch.Tensor | None = None) -> list[torch.Tensor]:
+        """Per-block conditioning for flow times ``t (N,)`` and step sizes ``d (N,)``:
+        ``depth x (N, C)``. The condition is ``E_t(t) + E_d(d)`` when the network was built with
+        ``step_size_conditioning`` (``d`` None means 0, the flow-matching field), else ``E_t(t)``
+        and ``d`` must be None or zeros."""
+        cond = self.time_embed(t)
+        if self.step_size_embed is not None:
+            cond = cond + self.step_size_embed(torch.zeros_like(t) if d is None else d)
+        elif d is not None and bool((d != 0).any()):
+            raise ValueError(
+                "this network has no step-size conditioning (few_step_objective='none'): d must be 0"
+            )
+        return self.transformer.time_shifts(cond)
 
     def velocity(
         self,
@@ -197,6 +217,7 @@ class ActionFlowNetwork(nn.Module):
         x: PoseChunk,
         t: torch.Tensor | None = None,
         shifts: list[torch.Tensor] | None = None,
+        d: torch.Tensor | None = None,
     ) -> PoseVelocity:
         """Local velocities of the action tokens.
 
@@ -205,13 +226,14 @@ class ActionFlowNetwork(nn.Module):
             x: current action chunk ``r (B, H, 3, 3), p (B, H, 3), g (B, H)``.
             t: flow time ``(B,)``, or instead
             shifts: its conditioning from :meth:`time_shifts` (``depth x (B or 1, C)``).
+            d: step sizes ``(B,)`` with ``t`` (see :meth:`time_shifts`); ignored with ``shifts``.
         Returns:
             ``v_r (B, H, 3)``, ``v_p (B, H, 3)`` in metres, ``v_g (B, H)``.
         """
         if shifts is None:
             if t is None:
                 raise ValueError("velocity needs the flow time t or its time shifts")
-            shifts = self.time_shifts(t)
+            shifts = self.time_shifts(t, d)
         f = self.step_embed[None] + self.gripper_proj(x.g[..., None])
         r_a, p_a = self.adaptation(encoded.r_ref, encoded.p_ref, x.r, x.p)
         out = self.transformer.forward_with_context(

@@ -72,6 +72,8 @@ SAMPLER_INDEPENDENT_FIELDS = frozenset(
         "dropout",
         "train_time_distribution",
         "train_time_beta",
+        "train_time_logit_normal",
+        "shortcut_fraction",
         "loss_weight_translation",
         "loss_weight_rotation",
         "loss_weight_gripper",

@@ -5,8 +5,8 @@ EEF frame, a time ``t``, the point on the geodesic path and its local target vel
 regress the network's velocities onto them (translation errors in units of
 ``1 / translation_scale`` metres, so that the three terms have similar size).
 
-Sampling (Alg. 2): ``K`` Euler steps on SE(3) from ``q0``; the chunk is returned as absolute
-EEF targets ``[x, y, z, rot6d, gripper]``.
+Sampling (Alg. 2): ``K`` Euler (or midpoint, ``solver``) steps on SE(3) from ``q0``; the chunk is
+returned as absolute EEF targets ``[x, y, z, rot6d, gripper]``.
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ from lerobot.policies.pretrained import PreTrainedPolicy
 from lerobot.policies.utils import populate_queues
 from torch import Tensor
 
-from lerobot_actionflow.flow import guidance, schedules
+from lerobot_actionflow.flow import guidance, schedules, shortcut
 from lerobot_actionflow.flow import se3 as se3_flow
 from lerobot_actionflow.geometry import check_finite, check_quaternion, quaternion_to_matrix
 from lerobot_actionflow.nn import ActionFlowNetwork, IPASize, ObservationTokens, PoseAdaptation
@@ -38,6 +38,7 @@ from lerobot_actionflow.policies.execution import (
     rtc_guidance,
     timed,
 )
+from lerobot_actionflow.policies.flow_options import check_rtc_solver, check_shortcut_sampling
 from lerobot_actionflow.policies.inputs import check_num_inference_steps, check_observation
 from lerobot_actionflow.policies.loading import StrictLoading
 from lerobot_actionflow.schema import ACTION_DIM, ACTION_KEY, POSES_KEY, STATE_KEY
@@ -87,6 +88,7 @@ class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
             point_groups=config.point_cloud_groups if config.point_cloud_key else 0,
             point_group_size=config.point_cloud_group_size,
             point_width=config.point_cloud_width,
+            step_size_conditioning=config.few_step_objective == "shortcut",
         )
         #: Per-step shape of every observation feature the policy reads.
         self._observation_shapes = {POSES_KEY: tuple(config.poses_feature.shape)}
@@ -140,10 +142,22 @@ class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
         )  # fmt: skip
         x0 = se3_flow.noise_to_world(noise, encoded.r_ref, encoded.p_ref)
         t = schedules.sample_train_times(
-            b, cfg.train_time_distribution, cfg.train_time_beta, dtype=action.dtype, device=action.device
-        )
+            b, cfg.train_time_distribution, cfg.train_time_beta, dtype=action.dtype, device=action.device,
+            logit_normal=cfg.train_time_logit_normal,
+        )  # fmt: skip
+        d = None
+        n_short = round(cfg.shortcut_fraction * b) if cfg.few_step_objective == "shortcut" else 0
+        if n_short:
+            # The first n_short samples get shortcut times and step sizes (flow.shortcut).
+            t_s, d_s = shortcut.draw_shortcut_times(n_short, cfg.shortcut_max_steps, None, t.dtype, t.device)
+            t = torch.cat((t_s, t[n_short:]))
         x_t, u_t = se3_flow.geodesic_path(x0, x1, t)
-        pred = self.network.velocity(encoded, x_t, t)
+        if cfg.few_step_objective == "shortcut":
+            d = torch.zeros_like(t)
+        if n_short:
+            u_t = self._with_shortcut_targets(encoded, x_t, u_t, t_s, d_s)
+            d = torch.cat((2 * d_s, d[n_short:]))
+        pred = self.network.velocity(encoded, x_t, t, d=d)
 
         err_p = ((pred.p - u_t.p) * cfg.translation_scale).square().sum(-1)  # (B, H)
         err_r = (pred.r - u_t.r).square().sum(-1)
@@ -163,6 +177,29 @@ class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
             + cfg.loss_weight_gripper * terms["gripper"]
         )
         return loss, {f"loss_{k}": v.item() for k, v in terms.items()}
+
+    @torch.no_grad()
+    def _with_shortcut_targets(
+        self,
+        encoded,
+        x_t: se3_flow.PoseChunk,
+        u_t: se3_flow.PoseVelocity,
+        t_s: Tensor,
+        d_s: Tensor,
+    ) -> se3_flow.PoseVelocity:
+        """``u_t`` with its first ``len(t_s)`` rows replaced by the shortcut targets of
+        :func:`lerobot_actionflow.flow.shortcut.shortcut_target` (the model's own two steps of
+        size ``d_s``, no gradient)."""
+        n = t_s.shape[0]
+        enc = encoded.first(n)
+        x_s = se3_flow.PoseChunk(x_t.r[:n], x_t.p[:n], x_t.g[:n])
+
+        def field(x, t, d):
+            return self.network.velocity(enc, x, t, d=d)
+
+        inner = shortcut.inner_conditioning(d_s, self.config.shortcut_max_steps)
+        target = shortcut.shortcut_target(field, x_s, t_s, d_s, cond_d=inner)
+        return se3_flow.PoseVelocity(*(torch.cat((a, b[n:])) for a, b in zip(target, u_t, strict=True)))
 
     def supports_rtc(self) -> bool:
         """LeRobot's real-time chunking (``lerobot-rollout --inference.type=rtc``) is supported."""
@@ -189,7 +226,8 @@ class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
                 own history, as :meth:`select_action` does (an observation equal to the newest
                 one is not appended twice).
             noise: initial noise in the EEF frame (drawn if None).
-            num_inference_steps: Euler steps K >= 1 (default: the config's); no retraining needed.
+            num_inference_steps: integration steps K >= 1 (default: the config's; ``2K`` network
+                calls with ``solver="midpoint"``); no retraining needed.
             inference_delay, prev_chunk_left_over, execution_horizon: real-time chunking (LeRobot's
                 RTC engine). ``prev_chunk_left_over`` ``(T, 10)`` or ``(B, T, 10)``: the previous
                 chunk's actions not executed yet, action ``i`` due at the step of this chunk's
@@ -201,12 +239,14 @@ class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
             **kwargs: other keywords LeRobot's inference engines may pass; unused.
 
         Raises:
-            ValueError: a bad observation (:meth:`check_observation`), K < 1, or a bad leftover.
+            ValueError: a bad observation (:meth:`check_observation`), K < 1, a bad leftover, or
+                a leftover with ``solver="midpoint"`` (the guidance integrates with Euler).
         """
         obs = self._observation_history(batch)
         rtc = rtc_config_of(self.config)
         if prev_chunk_left_over is None or rtc is None:
             return self._predict(obs, noise, num_inference_steps)
+        check_rtc_solver(self.config.solver)
         guide = rtc_guidance(
             prev_chunk_left_over.to(self._dtype),
             inference_delay,
@@ -251,7 +291,7 @@ class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
         )
         encoded = self.network.encode_observations(obs)
         x0 = se3_flow.noise_to_world(noise, encoded.r_ref, encoded.p_ref)
-        shifts = self.network.time_shifts(times[:-1])
+        shifts = self.network.time_shifts(times[:-1], self._step_sizes(k, k, times))
 
         def velocity(x: se3_flow.PoseChunk, k: int) -> se3_flow.PoseVelocity:
             return self.network.velocity(encoded, x, shifts=[s[k : k + 1] for s in shifts])
@@ -424,14 +464,27 @@ class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
         encoded = self.network.encode_observations(obs)
         noise = se3_flow.LocalNoise(noise_r, noise_p, noise_g)
         x0 = se3_flow.noise_to_world(noise, encoded.r_ref, encoded.p_ref)
-        # Every flow time of the chunk is known: condition all K steps with one call per block.
-        shifts = self.network.time_shifts(times[:-1])  # depth x (K, C)
+        # Every flow time of the chunk is known: condition all K (Euler) or 2K (midpoint)
+        # evaluations with one call per block.
+        solver = self.config.solver
+        at = schedules.evaluation_times(times, solver)
+        shifts = self.network.time_shifts(at, self._step_sizes(times.shape[0] - 1, at.shape[0], times))
 
-        def velocity(x: se3_flow.PoseChunk, k: int) -> se3_flow.PoseVelocity:
-            return self.network.velocity(encoded, x, shifts=[s[k : k + 1] for s in shifts])
+        def velocity(x: se3_flow.PoseChunk, j: int) -> se3_flow.PoseVelocity:
+            return self.network.velocity(encoded, x, shifts=[s[j : j + 1] for s in shifts])
 
-        x1 = se3_flow.euler_sample(velocity, x0, times)
+        x1 = se3_flow.sample(velocity, x0, times, solver)
         return pose_to_action(x1.r, x1.p, x1.g.clamp(-1.0, 1.0))
+
+    def _step_sizes(self, num_steps: int, num_evaluations: int, times: Tensor) -> Tensor | None:
+        """The step-size conditioning of each network evaluation of a K-step chunk: ``1/K`` (0 for
+        ``K >= shortcut_max_steps``) with the shortcut objective, else None (plain flow)."""
+        cfg = self.config
+        if cfg.few_step_objective != "shortcut":
+            return None
+        check_shortcut_sampling(cfg)
+        d = shortcut.sampling_step_size(num_steps, cfg.shortcut_max_steps)
+        return torch.full((num_evaluations,), d, dtype=times.dtype, device=times.device)
 
     def check_observation(self, batch: dict[str, Tensor], with_time: bool = True) -> dict[str, Tensor]:
         """Every check of the observations the policy reads, in one place.

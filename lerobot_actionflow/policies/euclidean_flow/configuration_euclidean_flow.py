@@ -9,8 +9,9 @@ min-max normalised to ``[-1, 1]`` like Diffusion Policy.
 
 Inference knobs that need no retraining (they are read at every call, and can be overridden per
 call or with ``--policy.num_inference_steps=...`` on ``lerobot-eval``): ``num_inference_steps``
-(``K`` Euler steps = ``K`` network calls), ``time_spacing`` (``"uniform"`` or ``"exponential"``)
-and ``time_spacing_rate``.
+(``K`` integration steps), ``solver`` (``"euler"``: ``K`` network calls; ``"midpoint"``: ``2K``,
+second order; real-time chunking needs ``"euler"``), ``time_spacing`` (``"uniform"`` or
+``"exponential"``) and ``time_spacing_rate``.
 
 The UNet fields carry the same names and defaults as LeRobot's ``DiffusionConfig``, because the
 UNet backbone *is* LeRobot's ``DiffusionConditionalUnet1d``, built from this config; likewise the
@@ -34,6 +35,7 @@ from lerobot_actionflow.policies.config_errors import (
     require_probability,
 )
 from lerobot_actionflow.policies.execution import validate_execution_fields
+from lerobot_actionflow.policies.flow_options import validate_solver_field, validate_train_time_fields
 from lerobot_actionflow.policies.point_cloud_inputs import (
     check_point_cloud_feature,
     validate_point_cloud_fields,
@@ -47,7 +49,6 @@ from lerobot_actionflow.schema import ACTION_DIM, ENV_STATE_KEY, STATE_KEY, imag
 
 BACKBONES = ("transformer", "unet")
 TIME_SPACINGS = ("uniform", "exponential")
-TRAIN_TIME_DISTRIBUTIONS = ("uniform", "beta")
 
 
 @PreTrainedConfig.register_subclass("euclidean_flow")
@@ -152,7 +153,10 @@ class EuclideanFlowConfig(PreTrainedConfig):
     # Flow matching.
     train_time_distribution: str = "uniform"
     train_time_beta: tuple[float, float] = (1.5, 1.0)
+    # "logit_normal": t = sigmoid(N(mean, std^2)) with (mean, std) = train_time_logit_normal.
+    train_time_logit_normal: tuple[float, float] = (0.0, 1.0)
     num_inference_steps: int = 10
+    solver: str = "euler"
     time_spacing: str = "exponential"
     time_spacing_rate: float = 2.0
     # Clip the generated (normalised) chunk to [-1, 1], the range of min-max normalised actions.
@@ -190,7 +194,8 @@ class EuclideanFlowConfig(PreTrainedConfig):
         """
         require_choice(self, "backbone", BACKBONES)
         require_choice(self, "time_spacing", TIME_SPACINGS)
-        require_choice(self, "train_time_distribution", TRAIN_TIME_DISTRIBUTIONS)
+        validate_train_time_fields(self)
+        validate_solver_field(self)
         require_ints(self, ("num_inference_steps", "n_obs_steps", "horizon", "n_action_steps"))
         require(
             self.n_action_steps <= self.horizon - self.n_obs_steps + 1,
@@ -199,10 +204,6 @@ class EuclideanFlowConfig(PreTrainedConfig):
         )
         require_ints(self, ("drop_n_last_frames",), minimum=0)
         require_positive(self, ("time_spacing_rate", "time_embed_scale"))
-        require(
-            len(self.train_time_beta) == 2 and all(b > 0 for b in self.train_time_beta),
-            f"`train_time_beta` must be two numbers > 0, got {self.train_time_beta!r}",
-        )
         if self.backbone == "transformer":
             require_ints(self, ("n_layer", "n_head", "n_emb"))
             require(

@@ -27,9 +27,9 @@ from lerobot.policies.utils import populate_queues
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_IMAGES, OBS_STATE
 from torch import Tensor, nn
 
-from lerobot_actionflow.flow.euclidean import euler_sample, linear_path
+from lerobot_actionflow.flow.euclidean import linear_path, sample
 from lerobot_actionflow.flow.guidance import inpaint_sample_euclidean
-from lerobot_actionflow.flow.schedules import make_time_grid, sample_train_times
+from lerobot_actionflow.flow.schedules import evaluation_times, make_time_grid, sample_train_times
 from lerobot_actionflow.nn.pointnet import PointNetEncoder
 from lerobot_actionflow.policies.euclidean_flow.backbones import make_backbone
 from lerobot_actionflow.policies.euclidean_flow.configuration_euclidean_flow import EuclideanFlowConfig
@@ -42,6 +42,7 @@ from lerobot_actionflow.policies.execution import (
     rtc_guidance,
     timed,
 )
+from lerobot_actionflow.policies.flow_options import check_rtc_solver
 from lerobot_actionflow.policies.inputs import check_num_inference_steps, check_observation
 from lerobot_actionflow.policies.loading import StrictLoading
 
@@ -178,6 +179,7 @@ class EuclideanFlowPolicy(StrictLoading, PreTrainedPolicy):
             a1.shape[0],
             self.config.train_time_distribution,
             beta=self.config.train_time_beta,
+            logit_normal=self.config.train_time_logit_normal,
             dtype=a1.dtype,
             device=a1.device,
         )
@@ -204,10 +206,11 @@ class EuclideanFlowPolicy(StrictLoading, PreTrainedPolicy):
         time_spacing: str | None = None,
     ) -> Tensor:
         """Full normalised chunk ``(B, H, A)`` from prepared observations ``(B, S, ...)``:
-        ``K`` Euler steps from ``a_0 = noise`` (``N(0, I)`` if not given) on the time grid."""
+        ``K`` Euler or midpoint steps (``solver``) from ``a_0 = noise`` (``N(0, I)`` if not given)
+        on the time grid."""
         cond = self.obs_encoder(obs)  # (B, S, D)
         noise, times, velocity = self._flow(cond, noise, num_inference_steps, time_spacing)
-        chunk = euler_sample(velocity, noise, times)
+        chunk = sample(velocity, noise, times, self.config.solver)
         return chunk.clamp(-1.0, 1.0) if self.config.clip_sample else chunk
 
     def supports_rtc(self) -> bool:
@@ -248,6 +251,7 @@ class EuclideanFlowPolicy(StrictLoading, PreTrainedPolicy):
         rtc = rtc_config_of(self.config)
         if prev_chunk_left_over is None or rtc is None:
             return self._from_current_step(self.sample_chunk(obs, noise, num_inference_steps, time_spacing))
+        check_rtc_solver(self.config.solver)
         cond = self.obs_encoder(obs)
         guide = rtc_guidance(
             prev_chunk_left_over.to(cond),
@@ -275,7 +279,8 @@ class EuclideanFlowPolicy(StrictLoading, PreTrainedPolicy):
         self, cond: Tensor, noise: Tensor | None, num_inference_steps: int | None, time_spacing: str | None
     ) -> tuple[Tensor, Tensor, Callable[[Tensor, int], Tensor]]:
         """The initial noise ``(B, H, A)`` (drawn if None, else checked), the K + 1 flow times and
-        the step-indexed velocity field conditioned on ``cond``."""
+        the velocity field conditioned on ``cond``, indexed by the solver's evaluations
+        (:func:`~lerobot_actionflow.flow.schedules.evaluation_times`)."""
         shape = (cond.shape[0], self.config.horizon, self.config.action_feature.shape[0])
         if noise is None:
             noise = torch.randn(shape, dtype=cond.dtype, device=cond.device)
@@ -290,8 +295,10 @@ class EuclideanFlowPolicy(StrictLoading, PreTrainedPolicy):
             device=cond.device,
         )
 
-        def velocity(a: Tensor, k: int) -> Tensor:
-            return self.velocity_net(a, times[k].expand(a.shape[0]), cond)
+        at = evaluation_times(times, self.config.solver)
+
+        def velocity(a: Tensor, j: int) -> Tensor:
+            return self.velocity_net(a, at[j].expand(a.shape[0]), cond)
 
         return noise.to(cond.dtype), times, velocity
 
