@@ -27,8 +27,10 @@ store and the summaries): ``--study ablation`` (ActionFlow's defaults) or ``--st
 every IS of ``--inference-steps`` and every grid of ``--time-spacings``. Each evaluation is one
 cell of ``--results`` (default ``benchmarks/results/<task>.json``), written as it finishes; a
 rerun skips the cells and the training runs that exist. Prints mean +- std over seeds.
-``--cameras wrist,agentview --image-size 80`` records a second dataset with those cameras and
-trains and evaluates every setting on it (setting names get ``[cameras@size]``).
+``--report`` prints the tables (and writes ``--plot``) from the stored cells without training or
+evaluating anything. ``--cameras wrist,agentview --image-size 80`` records a second dataset with
+those cameras and trains and evaluates every setting on it (setting names get
+``[cameras@size]``).
 
     python benchmarks/run_results.py --task Lift --study ablation --settings default,squash_off \
         --seeds 0,1,2 --steps 3000 --eval-every 1000 --inference-steps 2,10 --output /work/study/Lift
@@ -175,7 +177,7 @@ def run_study(args, env: dict, data: Path, repo_id: str) -> int:
     eval_tasks = [args.task, *[v for v in args.variants.split(",") if v]]
     store = ResultStore(args.results or REPO / "benchmarks" / "results" / f"{args.task}.json", args.task)
     out = args.output.resolve()
-    for base in names:
+    for base in [] if args.report else names:
         setting = settings[base]
         name = f"{base}[{args.cameras}@{args.image_size}]" if args.cameras else base
         for seed in seeds:
@@ -287,6 +289,9 @@ def main(argv: list[str] | None = None) -> int:
         "--cameras", default="", help="record, train and evaluate with these cameras (e.g. wrist,agentview)"
     )
     study.add_argument("--image-size", type=int, default=80, help="square camera images (pixels)")
+    study.add_argument(
+        "--report", action="store_true", help="only print the tables (and --plot) of the cells already stored"
+    )
     args = ap.parse_args(argv)
 
     out = args.output.resolve()
@@ -300,7 +305,7 @@ def main(argv: list[str] | None = None) -> int:
         images = ["--images", "--cameras", args.cameras, "--image-size", str(args.image_size)]
     timings: dict[str, float] = {}
 
-    if not (data / "meta" / "info.json").exists():
+    if not (data / "meta" / "info.json").exists() and not (args.study and args.report):
         start = time.perf_counter()
         _run(
             [_bin("actionflow-collect"), "--task", args.task, "--episodes", str(args.episodes),
