@@ -164,8 +164,9 @@ def _checkpoints(run: Path) -> dict[int, Path]:
     return found
 
 
-def run_study(args, env: dict, data: Path, repo_id: str) -> int:
-    """Train and evaluate the settings of ``args.study`` (see the module docstring)."""
+def run_study(args, env: dict, data: Path, repo_id: str, collect) -> int:
+    """Train and evaluate the settings of ``args.study`` (see the module docstring); ``collect()``
+    records the demonstrations the first time a run has to be trained."""
     settings = STUDIES[args.study]
     names = [n for n in args.settings.split(",") if n] or list(settings)
     unknown = sorted(set(names) - set(settings))
@@ -186,47 +187,54 @@ def run_study(args, env: dict, data: Path, repo_id: str) -> int:
             overrides = list(setting.overrides)
             if args.cameras:
                 overrides += IMAGE_OVERRIDES.get(setting.policy, [])
+            saved = sorted({*range(args.eval_every, args.steps + 1, args.eval_every), args.steps})
+            chosen = saved if args.eval_checkpoints == "all" else [args.steps]
+
+            def missing(step, eval_task, spacing, name=name, seed=seed, policy=setting.policy):
+                if spacing != "checkpoint" and policy == "diffusion":
+                    return []  # the time grid is a flow option
+                return [
+                    k for k in steps
+                    if CellKey(args.study, name, seed, step, eval_task, k, spacing,
+                               args.eval_episodes, args.eval_seed) not in store
+                ]  # fmt: skip
+
+            grid = [(st, task, sp) for st in chosen for task in eval_tasks for sp in spacings]
+            if not any(missing(*cell) for cell in grid):
+                continue  # every cell of this run is stored: no need for its checkpoints
+            collect()
             _train(run, setting.policy, overrides, seed, args.eval_every, data, repo_id, args, env)
             info = run / "train_wall_s.json"
             train_wall = json.loads(info.read_text())["train_wall_s"] if info.exists() else None
             ckpts = _checkpoints(run)
-            chosen = sorted(ckpts) if args.eval_checkpoints == "all" else [max(ckpts)]
-            for step in chosen:
-                for eval_task in eval_tasks:
-                    for spacing in spacings:
-                        if spacing != "checkpoint" and setting.policy == "diffusion":
-                            continue
-                        todo = [
-                            k for k in steps
-                            if CellKey(args.study, name, seed, step, eval_task, k, spacing,
-                                       args.eval_episodes, args.eval_seed) not in store
-                        ]  # fmt: skip
-                        if not todo:
-                            continue
-                        where = out / "eval" / run.relative_to(out) / f"step{step}"
-                        where = where / eval_task / spacing
-                        if where.exists():
-                            import shutil
+            for step, eval_task, spacing in grid:
+                todo = missing(step, eval_task, spacing)
+                if not todo:
+                    continue
+                where = out / "eval" / run.relative_to(out) / f"step{step}"
+                where = where / eval_task / spacing
+                if where.exists():
+                    import shutil
 
-                            shutil.rmtree(where)  # an evaluation that did not finish
-                        extra = [] if spacing == "checkpoint" else [f"--time_spacing={spacing}"]
-                        for row in _sweep([ckpts[step]], eval_task, todo, extra, where, args, env):
-                            store.add(
-                                {
-                                    "study": args.study, "setting": name, "policy": setting.policy,
-                                    "overrides": list(setting.overrides), "seed": seed, "step": step,
-                                    "eval_task": eval_task, "inference_steps": row["inference_steps"],
-                                    "time_spacing": spacing, "sampler": row["sampler"],
-                                    "n_episodes": row["n_episodes"], "eval_seed": args.eval_seed,
-                                    "pc_success": row["pc_success"], "eval_s": row["eval_s"],
-                                    "train_steps": args.steps, "batch_size": args.batch_size, "lr": args.lr,
-                                    "preset": args.preset, "train_wall_s": train_wall,
-                                    "demos": args.episodes, "cameras": args.cameras,
-                                    "image_size": args.image_size if args.cameras else None,
-                                    "episode_length": args.episode_length,
-                                    "date": time.strftime("%Y-%m-%d", time.gmtime()),
-                                }
-                            )  # fmt: skip
+                    shutil.rmtree(where)  # an evaluation that did not finish
+                extra = [] if spacing == "checkpoint" else [f"--time_spacing={spacing}"]
+                for row in _sweep([ckpts[step]], eval_task, todo, extra, where, args, env):
+                    store.add(
+                        {
+                            "study": args.study, "setting": name, "policy": setting.policy,
+                            "overrides": list(setting.overrides), "seed": seed, "step": step,
+                            "eval_task": eval_task, "inference_steps": row["inference_steps"],
+                            "time_spacing": spacing, "sampler": row["sampler"],
+                            "n_episodes": row["n_episodes"], "eval_seed": args.eval_seed,
+                            "pc_success": row["pc_success"], "eval_s": row["eval_s"],
+                            "train_steps": args.steps, "batch_size": args.batch_size, "lr": args.lr,
+                            "preset": args.preset, "train_wall_s": train_wall,
+                            "demos": args.episodes, "cameras": args.cameras,
+                            "image_size": args.image_size if args.cameras else None,
+                            "episode_length": args.episode_length,
+                            "date": time.strftime("%Y-%m-%d", time.gmtime()),
+                        }
+                    )  # fmt: skip
     cells = list(store.cells.values())
     for eval_task in eval_tasks:
         for spacing in spacings:
@@ -305,7 +313,10 @@ def main(argv: list[str] | None = None) -> int:
         images = ["--images", "--cameras", args.cameras, "--image-size", str(args.image_size)]
     timings: dict[str, float] = {}
 
-    if not (data / "meta" / "info.json").exists() and not (args.study and args.report):
+    def collect() -> None:
+        """Record the demonstrations unless they are there."""
+        if (data / "meta" / "info.json").exists():
+            return
         start = time.perf_counter()
         _run(
             [_bin("actionflow-collect"), "--task", args.task, "--episodes", str(args.episodes),
@@ -315,7 +326,8 @@ def main(argv: list[str] | None = None) -> int:
         timings["collect_s"] = time.perf_counter() - start
 
     if args.study is not None:
-        return run_study(args, env, data, repo_id)
+        return run_study(args, env, data, repo_id, collect)
+    collect()
 
     sizes = CPU_SIZE if args.preset == "cpu" else PAPER_SIZE
     checkpoints = []
