@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import pytest
@@ -66,18 +67,33 @@ def test_same_seed_same_weights_and_cross_resume(lift_dataset, tmp_path):
         "--num_workers=0",
         "--seed=3",
     ]
-    logs = {
-        name: _train(cli, *common, f"--output_dir={runs[name]}")
-        for name, cli in (("lerobot", LEROBOT_TRAIN), ("actionflow", ACTIONFLOW_TRAIN))
-    }
+    # The two CLIs run side by side (independent processes: most of each is importing).
+    with ThreadPoolExecutor(2) as pool:
+        logs = dict(
+            zip(
+                runs,
+                pool.map(
+                    lambda name, cli: _train(cli, *common, f"--output_dir={runs[name]}"),
+                    runs,
+                    (LEROBOT_TRAIN, ACTIONFLOW_TRAIN),
+                ),
+                strict=True,
+            )
+        )
     assert SOURCE_LOG in logs["actionflow"] and SOURCE_LOG not in logs["lerobot"]
     first = {name: _weights(run, 2) for name, run in runs.items()}
     _assert_equal_weights(first["lerobot"], first["actionflow"])
     # Each CLI resumes the other's checkpoint for one more step, in the other's output folder.
-    for cli, name in ((ACTIONFLOW_TRAIN, "lerobot"), (LEROBOT_TRAIN, "actionflow")):
+    resumers = {"lerobot": ACTIONFLOW_TRAIN, "actionflow": LEROBOT_TRAIN}
+
+    def resume(name: str) -> str:
         config = runs[name] / "checkpoints" / "last" / "pretrained_model" / "train_config.json"
-        log = _train(cli, "--resume=true", f"--config_path={config}", "--steps=3")
-        assert "Resuming data order" in log and (SOURCE_LOG in log) == (cli is ACTIONFLOW_TRAIN)
+        return _train(resumers[name], "--resume=true", f"--config_path={config}", "--steps=3")
+
+    with ThreadPoolExecutor(2) as pool:
+        for name, log in zip(runs, pool.map(resume, runs), strict=True):
+            ours = resumers[name] is ACTIONFLOW_TRAIN
+            assert "Resuming data order" in log and (SOURCE_LOG in log) == ours
     resumed = {name: _weights(run, 3) for name, run in runs.items()}
     _assert_equal_weights(resumed["lerobot"], resumed["actionflow"])
     # control: the resumed step trained, so the equality above compares updated weights
