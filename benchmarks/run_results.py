@@ -329,28 +329,13 @@ def main(argv: list[str] | None = None) -> int:
         return run_study(args, env, data, repo_id, collect)
     collect()
 
-    sizes = CPU_SIZE if args.preset == "cpu" else PAPER_SIZE
     checkpoints = []
     for policy in args.policies.split(","):
         run = out / "train" / policy
-        ckpt = run / "checkpoints" / "last" / "pretrained_model"
-        if not ckpt.exists():
-            if run.exists():
-                import shutil
-
-                shutil.rmtree(run)  # a run interrupted before its checkpoint
-            start = time.perf_counter()
-            _run(
-                [*train_command(), f"--policy.type={policy}", f"--policy.device={args.device}",
-                 "--policy.push_to_hub=false", f"--dataset.repo_id={repo_id}", f"--dataset.root={data}",
-                 f"--output_dir={run}", f"--steps={args.steps}", f"--save_freq={args.steps}",
-                 f"--batch_size={args.batch_size}", "--num_workers=0", "--log_freq=100",
-                 "--wandb.enable=false", f"--seed={args.seed}", f"--policy.optimizer_lr={args.lr}",
-                 "--policy.scheduler_warmup_steps=100", *COMMON, *sizes[policy]],
-                env, out / "logs" / f"train_{policy}.log",
-            )  # fmt: skip
-            timings[f"train_{policy}_s"] = time.perf_counter() - start
-        checkpoints.append(ckpt)
+        wall = _train(run, policy, [], args.seed, args.steps, data, repo_id, args, env)
+        if wall is not None:
+            timings[f"train_{policy}_s"] = wall
+        checkpoints.append(run / "checkpoints" / "last" / "pretrained_model")
 
     steps = [int(s) for s in args.inference_steps.split(",")]
     results = {"args": {k: str(v) for k, v in vars(args).items()}, "timings": timings}
