@@ -25,6 +25,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from lerobot_actionflow.nn.pointnet import PointNetEncoder
 from lerobot_actionflow.schema import POINT_DIM
 
 
@@ -90,14 +91,7 @@ class PointGroupTokenizer(nn.Module):
             if int(v) < 1:
                 raise ValueError(f"point tokens: {name} must be >= 1, got {v}")
         self.num_groups, self.group_size = int(num_groups), int(group_size)
-        self.point_mlp = nn.Sequential(
-            nn.Linear(POINT_DIM, width),
-            nn.GELU(),
-            nn.Linear(width, width),
-            nn.GELU(),
-            nn.Linear(width, width),
-        )
-        self.out = nn.Sequential(nn.LayerNorm(width), nn.Linear(width, dim))
+        self.encoder = PointNetEncoder(width, dim)  # per group: max over its k neighbours
 
     def forward(
         self, points: torch.Tensor, r_ref: torch.Tensor, scale: float
@@ -107,5 +101,4 @@ class PointGroupTokenizer(nn.Module):
         centres, neighbours = group_points(points, self.num_groups, self.group_size)
         # R^T (x_j - c): row-vector form (x_j - c)^T R.
         local = (neighbours - centres[:, :, None]) @ r_ref[:, None] * scale
-        feats = self.point_mlp(local).amax(dim=2)  # (B, G, width), max over the k neighbours
-        return self.out(feats), centres
+        return self.encoder(local), centres
