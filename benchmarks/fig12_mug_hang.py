@@ -20,7 +20,14 @@ Stages (each skipped when its output exists, so an interrupted run continues whe
    env for the point-cloud policies.
 
 Writes ``<output>/fig12_results.json`` (cells, timings, arguments) and
-``<output>/fig12_table.md`` (success % per policy and variant), and prints the table.
+``<output>/fig12_table.md`` (success % per policy and variant), and prints the table. Each save
+merges into the JSON under a file lock, so runs of disjoint ``--policies`` on one ``--output``
+(after its collection) can go side by side.
+
+``--policies`` also accepts the point-token ablations of ``actionflow_pc`` (not run by default):
+``actionflow_pc_g16`` / ``actionflow_pc_g64`` (G point tokens instead of ``--groups``) and
+``actionflow_pc_k1`` / ``actionflow_pc_k32`` (k points per group instead of ``--group-size``;
+k = 1 is bare points: each token carries only its position, no local geometry).
 
     python benchmarks/fig12_mug_hang.py --output outputs/fig12
     # tiny check that every stage runs (minutes on a CPU):
@@ -31,6 +38,7 @@ Writes ``<output>/fig12_results.json`` (cells, timings, arguments) and
 from __future__ import annotations
 
 import argparse
+import fcntl
 import json
 import os
 import shutil
@@ -50,29 +58,54 @@ AF_TINY = ["--policy.dim=32", "--policy.num_layers=1", "--policy.num_heads=2", "
 EF_CPU = ["--policy.backbone=unet", "--policy.down_dims=[64,128,256]"]
 EF_TINY = ["--policy.backbone=unet", "--policy.down_dims=[16,32,64]", "--policy.n_groups=8"]
 PC = [f"--policy.point_cloud_key={POINT_CLOUD_KEY}"]
+FIGURE = ("actionflow_pose", "actionflow_pc", "euclidean_flow_pc")
+#: ``actionflow_pc`` ablations: name suffix -> (G point tokens, k points per group); None = the CLI's.
+POINT_TOKEN_ABLATIONS = {"g16": (16, None), "g64": (64, None), "k1": (None, 1), "k32": (None, 32)}
 
 
 def policies(args) -> dict[str, dict]:
-    """Name -> ``{"type", "args", "point_cloud"}`` of the three policies of the figure."""
+    """Name -> ``{"type", "args", "point_cloud"}`` of the three policies of the figure (:data:`FIGURE`)
+    and of the point-token ablations."""
     af = AF_TINY if args.tiny_models else AF_CPU
     ef = EF_TINY if args.tiny_models else EF_CPU
-    groups = [
-        f"--policy.point_cloud_groups={args.groups}",
-        f"--policy.point_cloud_group_size={args.group_size}",
-    ]
-    return {
-        "actionflow_pose": {"type": "actionflow", "args": af, "point_cloud": False},
-        "actionflow_pc": {
+
+    def actionflow_pc(groups: int, group_size: int) -> dict:
+        tokens = [f"--policy.point_cloud_groups={groups}", f"--policy.point_cloud_group_size={group_size}"]
+        return {
             "type": "actionflow",
-            "args": [*af, *PC, *groups, "--policy.pose_entities=[0]"],
+            "args": [*af, *PC, *tokens, "--policy.pose_entities=[0]"],
             "point_cloud": True,
-        },
+        }
+
+    table = {
+        "actionflow_pose": {"type": "actionflow", "args": af, "point_cloud": False},
+        "actionflow_pc": actionflow_pc(args.groups, args.group_size),
         "euclidean_flow_pc": {
             "type": "euclidean_flow",
             "args": [*ef, *PC, "--policy.use_environment_state=false"],
             "point_cloud": True,
         },
     }
+    for suffix, (groups, group_size) in POINT_TOKEN_ABLATIONS.items():
+        table[f"actionflow_pc_{suffix}"] = actionflow_pc(groups or args.groups, group_size or args.group_size)
+    return table
+
+
+def merge_save(path: Path, results: dict) -> dict:
+    """Merge ``results`` into the JSON at ``path`` (timings and cells per policy and variant; ours
+    win) under ``<path>.lock``, write it atomically, and return the merged content."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path.with_name(path.name + ".lock"), "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        merged = json.loads(path.read_text()) if path.exists() else {"timings": {}, "cells": {}}
+        merged["args"] = results["args"]
+        merged["timings"].update(results["timings"])
+        for name, row in results["cells"].items():
+            merged["cells"].setdefault(name, {}).update(row)
+        tmp = path.with_name(f".{path.name}.{os.getpid()}")
+        tmp.write_text(json.dumps(merged, indent=2))
+        os.replace(tmp, path)
+    return merged
 
 
 def _run(cmd: list[str], env: dict, log: Path) -> float:
@@ -117,7 +150,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--lr", type=float, default=1e-3)
     ap.add_argument("--device", default="cpu", help="training device")
     ap.add_argument("--tiny-models", action="store_true", help="very small networks (a smoke run)")
-    ap.add_argument("--policies", default="", help="comma-separated subset of the three policies")
+    ap.add_argument(
+        "--policies",
+        default="",
+        help="comma-separated policies (default: the figure's three; see the docstring)",
+    )
     ap.add_argument("--inference-steps", type=int, default=10, help="IS of the evaluation")
     ap.add_argument("--eval-episodes", type=int, default=50)
     ap.add_argument("--eval-batch-size", type=int, default=10)
@@ -134,8 +171,7 @@ def main(argv: list[str] | None = None) -> int:
     timings, cells = results["timings"], results["cells"]
 
     def save() -> None:
-        out.mkdir(parents=True, exist_ok=True)
-        results_path.write_text(json.dumps(results, indent=2))
+        merge_save(results_path, results)
 
     data, repo_id = out / "data", "local/mug_hang_fig12"
     cloud_args = [
@@ -154,7 +190,7 @@ def main(argv: list[str] | None = None) -> int:
         save()
 
     table = policies(args)
-    names = [n for n in args.policies.split(",") if n] or list(table)
+    names = [n for n in args.policies.split(",") if n] or list(FIGURE)
     unknown = sorted(set(names) - set(table))
     if unknown:
         raise SystemExit(f"unknown policies {unknown}; choose from {sorted(table)}")
@@ -197,7 +233,8 @@ def main(argv: list[str] | None = None) -> int:
             cells.setdefault(name, {})[variant] = row
             save()
 
-    text = format_table(cells, names, args.eval_episodes)
+    cells = merge_save(results_path, results)["cells"]
+    text = format_table(cells, [n for n in table if n in cells], args.eval_episodes)
     (out / "fig12_table.md").write_text(text + "\n")
     print(text)
     return 0

@@ -49,3 +49,41 @@ def test_point_cloud_policies_read_the_cloud_and_not_the_object_poses(tmp_path):
     with pytest.raises(SystemExit, match="unknown policies"):
         _finished_run(tmp_path)
         fig12.main(["--output", str(tmp_path), "--policies", "diffusion"])
+
+
+def test_runs_of_different_policies_on_one_output_keep_each_others_cells(tmp_path):
+    path = tmp_path / "fig12_results.json"
+    first = {
+        "args": {},
+        "timings": {"collect_s": 1.0},
+        "cells": {"actionflow_pose": {"MugHang_D0": {"pc_success": 90}}},
+    }
+    # A second run started before the first saved: its view holds none of the first's cells.
+    second = {
+        "args": {},
+        "timings": {"train_actionflow_pc_s": 2.0},
+        "cells": {"actionflow_pc": {"MugHang_D0": {"pc_success": 70}}},
+    }
+    fig12.merge_save(path, first)
+    merged = fig12.merge_save(path, second)
+    assert merged["cells"] == {
+        "actionflow_pose": {"MugHang_D0": {"pc_success": 90}},
+        "actionflow_pc": {"MugHang_D0": {"pc_success": 70}},
+    }
+    assert merged["timings"] == {"collect_s": 1.0, "train_actionflow_pc_s": 2.0}
+    assert json.loads(path.read_text()) == merged
+    assert not list(tmp_path.glob(".fig12_results.json.*")), "the temporary file was left behind"
+
+
+def test_point_token_ablations_change_only_their_own_knob():
+    specs = fig12.policies(fig12.argparse.Namespace(tiny_models=True, groups=32, group_size=16))
+    base = specs["actionflow_pc"]["args"]
+    for name, changed in {
+        "actionflow_pc_g16": "--policy.point_cloud_groups=16",
+        "actionflow_pc_g64": "--policy.point_cloud_groups=64",
+        "actionflow_pc_k1": "--policy.point_cloud_group_size=1",
+        "actionflow_pc_k32": "--policy.point_cloud_group_size=32",
+    }.items():
+        args = specs[name]["args"]
+        assert changed in args and changed not in base
+        assert len(set(args) ^ set(base)) == 2, f"{name} differs from actionflow_pc in more than one knob"
