@@ -164,6 +164,12 @@ def _checkpoints(run: Path) -> dict[int, Path]:
     return found
 
 
+def _folder(setting: str, camera_suffix: str) -> str:
+    """A setting's folder name: ``default``, or ``default_wrist_agentview_80`` with cameras
+    (sampling-only settings train nothing: their runs are those of the setting they name)."""
+    return (setting + camera_suffix).replace("[", "_").replace("@", "_").replace("]", "").replace(",", "_")
+
+
 def run_study(args, env: dict, data: Path, repo_id: str, collect) -> int:
     """Train and evaluate the settings of ``args.study`` (see the module docstring); ``collect()``
     records the demonstrations the first time a run has to be trained."""
@@ -180,11 +186,12 @@ def run_study(args, env: dict, data: Path, repo_id: str, collect) -> int:
     out = args.output.resolve()
     for base in [] if args.report else names:
         setting = settings[base]
-        name = f"{base}[{args.cameras}@{args.image_size}]" if args.cameras else base
+        trained = settings[setting.trained_as] if setting.trained_as else setting
+        camera_suffix = f"[{args.cameras}@{args.image_size}]" if args.cameras else ""
+        name = base + camera_suffix
         for seed in seeds:
-            folder = name.replace("[", "_").replace("@", "_").replace("]", "").replace(",", "_")
-            run = out / args.study / folder / f"seed{seed}"
-            overrides = list(setting.overrides)
+            run = out / args.study / _folder(setting.trained_as or base, camera_suffix) / f"seed{seed}"
+            overrides = list(trained.overrides)
             if args.cameras:
                 overrides += IMAGE_OVERRIDES.get(setting.policy, [])
             saved = sorted({*range(args.eval_every, args.steps + 1, args.eval_every), args.steps})
@@ -211,18 +218,24 @@ def run_study(args, env: dict, data: Path, repo_id: str, collect) -> int:
                 todo = missing(step, eval_task, spacing)
                 if not todo:
                     continue
-                where = out / "eval" / run.relative_to(out) / f"step{step}"
+                where = (
+                    out / "eval" / args.study / _folder(base, camera_suffix) / f"seed{seed}" / f"step{step}"
+                )
                 where = where / eval_task / spacing
                 if where.exists():
                     import shutil
 
                     shutil.rmtree(where)  # an evaluation that did not finish
-                extra = [] if spacing == "checkpoint" else [f"--time_spacing={spacing}"]
+                extra = [
+                    *([] if spacing == "checkpoint" else [f"--time_spacing={spacing}"]),
+                    *setting.sampling,
+                ]
                 for row in _sweep([ckpts[step]], eval_task, todo, extra, where, args, env):
                     store.add(
                         {
                             "study": args.study, "setting": name, "policy": setting.policy,
-                            "overrides": list(setting.overrides), "seed": seed, "step": step,
+                            "overrides": list(trained.overrides), "sampling": list(setting.sampling),
+                            "trained_as": setting.trained_as or base, "seed": seed, "step": step,
                             "eval_task": eval_task, "inference_steps": row["inference_steps"],
                             "time_spacing": spacing, "sampler": row["sampler"],
                             "n_episodes": row["n_episodes"], "eval_seed": args.eval_seed,

@@ -42,12 +42,16 @@ PAPER_SIZE = {"actionflow": [], "euclidean_flow": ["--policy.backbone=unet"], "d
 
 @dataclass(frozen=True)
 class Setting:
-    """One trained configuration: ``policy`` type and its ``overrides`` (``lerobot-train`` flags,
-    after :data:`COMMON` and the size preset, so they win)."""
+    """One configuration: ``policy`` type and its ``overrides`` (``lerobot-train`` flags, after
+    :data:`COMMON` and the size preset, so they win). A sampling-only setting names the setting
+    whose runs it evaluates (``trained_as``; its own ``overrides`` are then empty) and adds
+    ``sampling`` flags to the evaluation sweep: it costs no training."""
 
     policy: str
     overrides: tuple[str, ...] = ()
     why: str = ""
+    trained_as: str | None = None
+    sampling: tuple[str, ...] = ()
 
 
 #: Ablations of ActionFlow (issue #17, part 1). The time grid and K need no retraining: they
@@ -93,8 +97,10 @@ ABLATIONS: dict[str, Setting] = {
     ),
     "solver_midpoint": Setting(
         "actionflow",
-        ("--policy.solver=midpoint",),
-        "trains like default; samples with SE(3) midpoint steps (2 calls per step: even IS only)",
+        (),
+        "the default runs sampled with SE(3) midpoint steps (2 calls per step: even IS only)",
+        trained_as="default",
+        sampling=("--solver=midpoint",),
     ),
     "shortcut": Setting(
         "actionflow",

@@ -6,7 +6,8 @@ evaluation machinery (``make_env``, ``make_policy``, ``make_pre_post_processors`
 
 - ``actionflow`` and ``euclidean_flow``: ``K = IS`` Euler steps (on SE(3) x R for actionflow, in
   R^n for euclidean_flow; grid spacing from the checkpoint, or ``--time_spacing``), or
-  ``K = IS / 2`` midpoint steps when the checkpoint's config has ``solver="midpoint"`` (even IS only);
+  ``K = IS / 2`` midpoint steps when the checkpoint's config has ``solver="midpoint"`` or
+  ``--solver=midpoint`` asks for it (even IS only; the solver is a sampling choice, no retraining);
 - ``diffusion`` (LeRobot's Diffusion Policy): DDIM with IS steps for ``IS < num_train_timesteps``,
   DDPM when ``IS == num_train_timesteps`` (the paper's protocol; 100 by default).
 
@@ -37,7 +38,7 @@ import numpy as np
 from lerobot.configs.default import EvalConfig
 from lerobot.envs.configs import EnvConfig
 
-from lerobot_actionflow.flow.schedules import network_calls
+from lerobot_actionflow.flow.schedules import SOLVERS, network_calls
 
 
 @dataclass
@@ -51,6 +52,8 @@ class SweepConfig:
     inference_steps: list[int] = field(default_factory=lambda: [2, 5, 10, 20, 100])
     # actionflow / euclidean_flow only: "uniform" or "exponential"; None keeps each checkpoint's setting.
     time_spacing: str | None = None
+    # actionflow / euclidean_flow only: "euler" or "midpoint"; None keeps each checkpoint's setting.
+    solver: str | None = None
     eval: EvalConfig = field(default_factory=lambda: EvalConfig(n_episodes=50, batch_size=10))
     seed: int = 1000
     # None: the checkpoint's device if available, else what LeRobot picks.
@@ -58,19 +61,26 @@ class SweepConfig:
     output_dir: Path | None = None
 
 
-def set_inference_steps(policy, num_steps: int, time_spacing: str | None = None) -> str:
+def set_inference_steps(
+    policy, num_steps: int, time_spacing: str | None = None, solver: str | None = None
+) -> str:
     """Make ``policy`` spend ``num_steps`` network calls per chunk; returns the sampler's name.
 
     ``actionflow`` / ``euclidean_flow``: ``K = num_steps`` steps with ``solver="euler"``; with
     ``solver="midpoint"`` (two calls per step) ``K = num_steps / 2``, and an odd ``num_steps`` is
-    refused. The name is ``<solver>-<time spacing>``. ``diffusion``: DDIM with
-    ``num_steps`` steps, or DDPM when ``num_steps`` equals the trained ``num_train_timesteps`` (built from the
-    trained noise schedule with ``from_config``, so betas and clipping are unchanged).
+    refused. ``time_spacing`` and ``solver`` replace the checkpoint's when given. The name is
+    ``<solver>-<time spacing>``. ``diffusion``: DDIM with ``num_steps`` steps, or DDPM when
+    ``num_steps`` equals the trained ``num_train_timesteps`` (built from the trained noise schedule
+    with ``from_config``, so betas and clipping are unchanged).
     """
     if not isinstance(num_steps, int) or num_steps < 1:
         raise ValueError(f"the number of inference steps must be an integer >= 1, got {num_steps!r}")
     kind = policy.config.type
     if kind in ("euclidean_flow", "actionflow"):
+        if solver is not None:
+            if solver not in SOLVERS:
+                raise ValueError(f"solver must be one of {SOLVERS}, got {solver!r}")
+            policy.config.solver = solver
         solver = getattr(policy.config, "solver", "euler")
         calls_per_step = network_calls(1, solver)
         if num_steps % calls_per_step:
@@ -85,8 +95,8 @@ def set_inference_steps(policy, num_steps: int, time_spacing: str | None = None)
     if kind == "diffusion":
         from diffusers import DDIMScheduler, DDPMScheduler
 
-        if time_spacing is not None:
-            raise ValueError("time_spacing applies to the flow policies only, not to diffusion")
+        if time_spacing is not None or solver is not None:
+            raise ValueError("time_spacing and solver apply to the flow policies only, not to diffusion")
         model = policy.diffusion
         trained = model.noise_scheduler.config.num_train_timesteps
         if num_steps > trained:
@@ -127,7 +137,7 @@ def _evaluate_checkpoint(cfg: SweepConfig, checkpoint: str) -> list[dict]:
     rows = []
     try:
         for num_steps in cfg.inference_steps:
-            sampler = set_inference_steps(policy, num_steps, cfg.time_spacing)
+            sampler = set_inference_steps(policy, num_steps, cfg.time_spacing, cfg.solver)
             successes: list[bool] = []
             start = time.perf_counter()
             for tasks in envs.values():

@@ -83,3 +83,45 @@ def test_plot_study_writes_a_png(tmp_path):
              for step in (1000, 2000) for k in (2, 10)]  # fmt: skip
     plot_study(cells, "ablation", "Lift", tmp_path / "p.png", "t")
     assert (tmp_path / "p.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_a_sampling_only_setting_evaluates_the_runs_it_names_without_training(tmp_path, monkeypatch):
+    import run_results
+
+    trained, swept = [], []
+
+    def fake_train(run, policy, overrides, seed, *a, **k):
+        trained.append((run, tuple(overrides)))  # the real _train skips a run already trained
+        (run / "checkpoints" / "000010" / "pretrained_model").mkdir(parents=True, exist_ok=True)
+
+    def fake_sweep(checkpoints, task, steps, extra, out, *a, **k):
+        swept.append((checkpoints[0], tuple(extra), out))
+        return [
+            {"inference_steps": s, "sampler": "x", "n_episodes": 2, "pc_success": 50.0, "eval_s": 1.0}
+            for s in steps
+        ]
+
+    monkeypatch.setattr(run_results, "_train", fake_train)
+    monkeypatch.setattr(run_results, "_sweep", fake_sweep)
+    results = tmp_path / "cells.json"
+    common = ["--output", str(tmp_path), "--results", str(results), "--study", "ablation", "--seeds", "0",
+              "--steps", "10", "--eval-every", "10", "--eval-episodes", "2",
+              "--inference-steps", "2,4"]  # fmt: skip
+    (tmp_path / "data" / "meta").mkdir(parents=True)
+    (tmp_path / "data" / "meta" / "info.json").write_text("{}")  # no collection
+    assert run_results.main([*common, "--settings", "default,solver_midpoint,squash_off"]) == 0
+
+    runs = [(run.relative_to(tmp_path).as_posix(), overrides) for run, overrides in trained]
+    squash_off = ("--policy.squash_translations=false",)
+    assert runs == [
+        ("ablation/default/seed0", ()),
+        ("ablation/default/seed0", ()),
+        ("ablation/squash_off/seed0", squash_off),
+    ]
+    (default_eval, midpoint_eval, _) = swept
+    assert default_eval[0] == midpoint_eval[0], "solver_midpoint must evaluate default's checkpoint"
+    assert "--solver=midpoint" in midpoint_eval[1] and "--solver=midpoint" not in default_eval[1]
+    assert default_eval[2] != midpoint_eval[2], "the two evaluations must not share a folder"
+    store = ResultStore(results, "Lift")
+    midpoint = [c for c in store.cells.values() if c["setting"] == "solver_midpoint"]
+    assert len(midpoint) == 2 and all(c["trained_as"] == "default" and c["overrides"] == [] for c in midpoint)

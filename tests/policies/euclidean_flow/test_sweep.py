@@ -167,3 +167,29 @@ def test_sweep_reports_success_per_inference_step(bimodal_checkpoint, tmp_path):
     assert by[("diffusion", 10)]["sampler"] == "ddim"
     saved = (tmp_path / "sweep" / "sweep_results.json").read_text()
     assert '"inference_steps": 10' in saved
+
+
+def test_the_solver_is_a_sampling_choice_counted_in_network_calls():
+    from lerobot_actionflow.policies.euclidean_flow.modeling_euclidean_flow import EuclideanFlowPolicy
+
+    from .conftest import bimodal_batch, bimodal_config
+
+    policy = EuclideanFlowPolicy(bimodal_config()).eval()  # trained with the default Euler solver
+    calls = []
+    policy.velocity_net.register_forward_hook(lambda *a: calls.append(1))
+    obs = {k: v for k, v in bimodal_batch(2, torch.Generator().manual_seed(0)).items() if k != "action"}
+    for steps, solver, name in [
+        (4, "midpoint", "midpoint-exponential"),
+        (4, None, "midpoint-exponential"),
+        (3, "euler", "euler-exponential"),
+    ]:
+        calls.clear()
+        assert set_inference_steps(policy, steps, solver=solver) == name
+        policy.predict_action_chunk(obs)
+        assert len(calls) == steps  # IS counts network calls whatever the solver
+    with pytest.raises(ValueError, match="multiple of 2"):
+        set_inference_steps(policy, 3, solver="midpoint")
+    with pytest.raises(ValueError, match="'rk4'"):
+        set_inference_steps(policy, 4, solver="rk4")
+    with pytest.raises(ValueError, match="flow policies only"):
+        set_inference_steps(_tiny_diffusion(), 10, solver="midpoint")
