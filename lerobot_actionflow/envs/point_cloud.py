@@ -9,7 +9,7 @@ both poses and points.)
 
 Pipeline, per camera ``c`` (an image of ``H x W`` pixels):
 
-1. Depth and segmentation from one scene update (:meth:`CameraRenderer.render_depth_and_geoms`):
+1. Depth and segmentation from one render pass (:meth:`CameraRenderer.render_depth_and_geoms`):
    ``mujoco.Renderer`` returns metric planar depth ``z`` (its reverse-Z buffer already
    linearised with the model's ``znear``/``zfar``, so robosuite's ``get_real_depth_map``, which
    linearises a normalised ``[0, 1]`` buffer, must not be applied again) and the geom id of each

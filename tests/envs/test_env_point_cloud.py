@@ -78,6 +78,28 @@ def test_the_raw_depth_holds_table_and_robot_points_that_removal_drops(lift_pc):
     assert on_table.sum() > 100
 
 
+def test_one_pass_depth_and_geoms_equal_mujocos_own_depth_and_segmentation_passes(lift_pc):
+    """The geom ids read from the depth pass's colour buffer are those of MuJoCo's segmentation
+    pass, pixel for pixel, and the depth is its depth pass's."""
+    _cube_at_known_pose(lift_pc)
+    renderer = lift_pc.point_cloud_sensor._renderer
+    depth, geoms = renderer.render_depth_and_geoms("agentview", 64, 80)
+    reference = mujoco.Renderer(renderer._model, 64, 80)
+    try:
+        reference.update_scene(renderer._data, camera="agentview", scene_option=renderer._geometry_option)
+        reference.enable_depth_rendering()
+        expected_depth = reference.render()
+        reference.disable_depth_rendering()
+        reference.enable_segmentation_rendering()
+        seg = reference.render()
+    finally:
+        reference.close()
+    expected_geoms = np.where(seg[..., 1] == mujoco.mjtObj.mjOBJ_GEOM, seg[..., 0], -1)
+    assert np.array_equal(depth, expected_depth)
+    assert np.array_equal(geoms, expected_geoms)
+    assert len(np.unique(geoms)) > 5  # not a trivially uniform image
+
+
 def test_image_rows_flipped_the_wrong_way_put_points_off_the_cube(lift_pc, monkeypatch):
     """Control for the orientation convention: OpenGL's bottom-up rows, read as top-down, move
     the points far off the faces."""
