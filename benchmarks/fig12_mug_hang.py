@@ -6,7 +6,8 @@ Stages (each skipped when its output exists, so an interrupted run continues whe
 1. ``actionflow-collect --point-cloud``: ``--episodes`` expert demonstrations of ``MugHang_D0``
    (the hanger in one place) with ``observation.point_cloud`` (``--points`` points): one
    dataset, the same demonstrations for every policy;
-2. ``actionflow-train`` of three policies on it, the same steps, batch, history and horizon:
+2. ``actionflow-train`` of three policies on it, the same steps, batch, history and horizon
+   (a checkpoint every ``--save-every`` steps; an interrupted run resumes from its last one):
 
    - ``actionflow_pose``: ActionFlow with the mug and hanger pose tokens (no cloud);
    - ``actionflow_pc``: ActionFlow with point-cloud group tokens, reading only the EEF row of
@@ -41,13 +42,13 @@ import argparse
 import fcntl
 import json
 import os
-import shutil
 import subprocess
 import sys
 import time
 from pathlib import Path
 
-from lerobot_actionflow.demo import train_command
+from train_runs import final_checkpoint, train_run
+
 from lerobot_actionflow.schema import POINT_CLOUD_KEY
 
 TRAIN_TASK = "MugHang_D0"
@@ -146,6 +147,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--group-size", type=int, default=16, help="actionflow_pc: k points per token")
     ap.add_argument("--seed", type=int, default=0, help="collection and training seed")
     ap.add_argument("--steps", type=int, default=20000, help="training steps, every policy")
+    ap.add_argument(
+        "--save-every", type=int, default=1000, help="checkpoint interval (an interrupted run resumes)"
+    )
     ap.add_argument("--batch-size", type=int, default=32)
     ap.add_argument("--lr", type=float, default=1e-3)
     ap.add_argument("--device", default="cpu", help="training device")
@@ -197,19 +201,21 @@ def main(argv: list[str] | None = None) -> int:
     for name in names:
         spec = table[name]
         run = out / "train" / name
-        ckpt = run / "checkpoints" / "last" / "pretrained_model"
+        ckpt = final_checkpoint(run, args.steps)
         if not ckpt.exists():
-            if run.exists():
-                shutil.rmtree(run)  # a run interrupted before its checkpoint
-            timings[f"train_{name}_s"] = _run(
-                [*train_command(), f"--policy.type={spec['type']}", f"--policy.device={args.device}",
+            resumed = (run / "checkpoints" / "last").exists()
+            save_freq = min(args.save_every, args.steps)
+            wall = train_run(
+                run,
+                [f"--policy.type={spec['type']}", f"--policy.device={args.device}",
                  "--policy.push_to_hub=false", f"--dataset.repo_id={repo_id}", f"--dataset.root={data}",
-                 f"--output_dir={run}", f"--steps={args.steps}", f"--save_freq={args.steps}",
+                 f"--output_dir={run}", f"--steps={args.steps}", f"--save_freq={save_freq}",
                  f"--batch_size={args.batch_size}", "--num_workers=0", "--log_freq=100",
                  "--wandb.enable=false", f"--seed={args.seed}", f"--policy.optimizer_lr={args.lr}",
                  f"--policy.scheduler_warmup_steps={min(100, args.steps)}", *COMMON, *spec["args"]],
-                env, out / "logs" / f"train_{name}.log",
+                args.steps, out / "logs" / f"train_{name}.log", env,
             )  # fmt: skip
+            timings[f"train_{name}_{'last_part_' if resumed else ''}s"] = wall
             save()
         for variant in VARIANTS:
             if variant in cells.get(name, {}):

@@ -57,8 +57,7 @@ from study import (
     plot_study,
     summarise,
 )
-
-from lerobot_actionflow.demo import train_command
+from train_runs import train_run
 
 POLICIES = ("actionflow", "euclidean_flow", "diffusion")
 REPO = Path(__file__).resolve().parents[1]
@@ -131,27 +130,22 @@ def _camera_env(args) -> list[str]:
 
 
 def _train(run: Path, policy: str, overrides: list[str], seed: int, save_freq: int, data, repo_id, args, env):
-    """Train one run into ``run`` unless its final checkpoint exists (an unfinished run is
-    started over); returns its wall time in seconds, or None when it was already there."""
-    if (run / "checkpoints" / "last" / "pretrained_model").exists():
-        return None
-    if run.exists():
-        import shutil
-
-        shutil.rmtree(run)  # a run interrupted before its last checkpoint
+    """Train one run into ``run`` to its final checkpoint (:func:`train_runs.train_run`: resumed
+    after an interruption); returns this call's wall time in seconds, or None when it was there."""
     sizes = CPU_SIZE if args.preset == "cpu" else PAPER_SIZE
-    start = time.perf_counter()
-    _run(
-        [*train_command(), f"--policy.type={policy}", f"--policy.device={args.device}",
+    resumed = (run / "checkpoints" / "last").exists()
+    wall = train_run(
+        run,
+        [f"--policy.type={policy}", f"--policy.device={args.device}",
          "--policy.push_to_hub=false", f"--dataset.repo_id={repo_id}", f"--dataset.root={data}",
          f"--output_dir={run}", f"--steps={args.steps}", f"--save_freq={save_freq}",
          f"--batch_size={args.batch_size}", "--num_workers=0", "--log_freq=100",
          "--wandb.enable=false", f"--seed={seed}", f"--policy.optimizer_lr={args.lr}",
          "--policy.scheduler_warmup_steps=100", *COMMON, *sizes[policy], *overrides],
-        env, run.parent / f"train_{run.name}.log",
+        args.steps, run.parent / f"train_{run.name}.log", env,
     )  # fmt: skip
-    wall = time.perf_counter() - start
-    (run / "train_wall_s.json").write_text(json.dumps({"train_wall_s": wall}))
+    if wall is not None:  # a resumed run's wall time is unknown (null): only its last part ran here
+        (run / "train_wall_s.json").write_text(json.dumps({"train_wall_s": None if resumed else wall}))
     return wall
 
 

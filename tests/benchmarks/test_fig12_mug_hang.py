@@ -16,7 +16,7 @@ def _finished_run(out: Path) -> None:
     (out / "data" / "meta" / "info.json").write_text("{}")
     cells = {}
     for i, name in enumerate(("actionflow_pose", "actionflow_pc", "euclidean_flow_pc")):
-        (out / "train" / name / "checkpoints" / "last" / "pretrained_model").mkdir(parents=True)
+        fig12.final_checkpoint(out / "train" / name, 20000).mkdir(parents=True)  # the default --steps
         cells[name] = {
             v: {"pc_success": 10.0 * i + j, "n_episodes": 50} for j, v in enumerate(fig12.VARIANTS)
         }
