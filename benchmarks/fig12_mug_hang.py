@@ -163,6 +163,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--eval-episodes", type=int, default=50)
     ap.add_argument("--eval-batch-size", type=int, default=10)
     ap.add_argument("--eval-seed", type=int, default=1000)
+    ap.add_argument(
+        "--eval-async",
+        action="store_true",
+        help="one process per env (about 1.3 GB each) instead of sync envs",
+    )
     ap.add_argument("--episode-length", type=int, default=None, help="evaluation cap (default: the task's)")
     args = ap.parse_args(argv)
 
@@ -232,6 +237,7 @@ def main(argv: list[str] | None = None) -> int:
                  *([f"--env.episode_length={args.episode_length}"] if args.episode_length else []),
                  f"--inference_steps=[{args.inference_steps}]", f"--eval.n_episodes={args.eval_episodes}",
                  f"--eval.batch_size={min(args.eval_batch_size, args.eval_episodes)}",
+                 f"--eval.use_async_envs={str(args.eval_async).lower()}",
                  f"--seed={args.eval_seed}", "--device=cpu", f"--output_dir={cell_dir}"],
                 env, out / "logs" / f"eval_{name}_{variant}.log",
             )  # fmt: skip
