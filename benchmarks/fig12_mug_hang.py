@@ -42,12 +42,10 @@ import argparse
 import fcntl
 import json
 import os
-import subprocess
 import sys
-import time
 from pathlib import Path
 
-from train_runs import final_checkpoint, train_run
+from train_runs import final_checkpoint, run_logged, train_run
 
 from lerobot_actionflow.schema import POINT_CLOUD_KEY
 
@@ -107,18 +105,6 @@ def merge_save(path: Path, results: dict) -> dict:
         tmp.write_text(json.dumps(merged, indent=2))
         os.replace(tmp, path)
     return merged
-
-
-def _run(cmd: list[str], env: dict, log: Path) -> float:
-    """Run ``cmd`` with its output in ``log``; its wall time in seconds."""
-    print("$", " ".join(cmd), f"> {log}", flush=True)
-    log.parent.mkdir(parents=True, exist_ok=True)
-    start = time.perf_counter()
-    with log.open("w") as f:
-        code = subprocess.run(cmd, env=env, stdout=f, stderr=subprocess.STDOUT).returncode
-    if code != 0:
-        raise SystemExit(f"failed ({code}): see {log}")
-    return time.perf_counter() - start
 
 
 def format_table(cells: dict, names: list[str], episodes: int) -> str:
@@ -190,7 +176,7 @@ def main(argv: list[str] | None = None) -> int:
         str(args.cloud_image_size),
     ]
     if not (data / "meta" / "info.json").exists():
-        timings["collect_s"] = _run(
+        timings["collect_s"] = run_logged(
             [sys.executable, "-m", "lerobot_actionflow.data.collect", "--task", TRAIN_TASK,
              "--episodes", str(args.episodes), "--root", str(data), "--repo-id", repo_id,
              "--seed", str(args.seed), "--no-progress", "--point-cloud", *cloud_args],
@@ -231,7 +217,7 @@ def main(argv: list[str] | None = None) -> int:
                  f"--env.point_cloud_image_size={args.cloud_image_size}"]
                 if spec["point_cloud"] else []
             )  # fmt: skip
-            timings[f"eval_{name}_{variant}_s"] = _run(
+            timings[f"eval_{name}_{variant}_s"] = run_logged(
                 [sys.executable, "-m", "lerobot_actionflow.evaluation.sweep", f"--checkpoints=[{ckpt}]",
                  "--env.type=actionflow", f"--env.task={variant}", *env_cloud,
                  *([f"--env.episode_length={args.episode_length}"] if args.episode_length else []),

@@ -41,7 +41,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -57,7 +56,7 @@ from study import (
     plot_study,
     summarise,
 )
-from train_runs import train_run
+from train_runs import run_logged, train_run
 
 POLICIES = ("actionflow", "euclidean_flow", "diffusion")
 REPO = Path(__file__).resolve().parents[1]
@@ -91,19 +90,12 @@ def _bin(name: str) -> str:
     return str(Path(sys.executable).with_name(name))
 
 
-def _run(cmd: list[str], env: dict, log: Path) -> None:
-    print("$", " ".join(cmd), f"> {log}", flush=True)
-    log.parent.mkdir(parents=True, exist_ok=True)
-    with log.open("w") as f:
-        subprocess.run(cmd, env=env, check=True, stdout=f, stderr=subprocess.STDOUT)
-
-
 def _sweep(
     checkpoints: list[Path], task: str, steps: list[int], extra: list[str], out: Path, args, env
 ) -> list:
     result = out / "sweep_results.json"
     if not result.exists():
-        _run(
+        run_logged(
             [sys.executable, "-m", "lerobot_actionflow.evaluation.sweep",
              f"--checkpoints=[{','.join(str(c) for c in checkpoints)}]",
              "--env.type=actionflow", f"--env.task={task}", *_camera_env(args), *extra,
@@ -325,7 +317,7 @@ def main(argv: list[str] | None = None) -> int:
         if (data / "meta" / "info.json").exists():
             return
         start = time.perf_counter()
-        _run(
+        run_logged(
             [_bin("actionflow-collect"), "--task", args.task, "--episodes", str(args.episodes),
              "--root", str(data), "--repo-id", repo_id, "--seed", str(args.seed), *images],
             env, out / "logs" / f"collect{'_' + tag if images else ''}.log",

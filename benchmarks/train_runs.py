@@ -1,4 +1,5 @@
-"""One training run of a benchmark, finished once: started, or resumed after an interruption.
+"""The benchmarks' subprocesses: one command with its output in a log (:func:`run_logged`), and one
+training run, finished once: started, or resumed after an interruption (:func:`train_run`).
 
 A run is finished when its checkpoint at the final step exists (LeRobot's numbered folder,
 ``checkpoints/<step>``). A run interrupted after at least one checkpoint resumes from
@@ -16,6 +17,19 @@ from pathlib import Path
 from lerobot.common.train_utils import get_step_identifier
 
 from lerobot_actionflow.demo import train_command
+
+
+def run_logged(cmd: list[str], env: dict, log: Path, append: bool = False) -> float:
+    """Run ``cmd`` with its output in ``log`` (appended to with ``append``); its wall time in
+    seconds. A failure exits with the log's path."""
+    print("$", " ".join(cmd), f"{'>>' if append else '>'} {log}", flush=True)
+    log.parent.mkdir(parents=True, exist_ok=True)
+    start = time.perf_counter()
+    with log.open("a" if append else "w") as f:
+        code = subprocess.run(cmd, env=env, stdout=f, stderr=subprocess.STDOUT).returncode
+    if code != 0:
+        raise SystemExit(f"failed ({code}): {' '.join(cmd[:3])} ...; see {log}")
+    return time.perf_counter() - start
 
 
 def final_checkpoint(run: Path, steps: int) -> Path:
@@ -36,13 +50,7 @@ def train_run(run: Path, train_args: list[str], steps: int, log: Path, env: dict
         if run.exists():
             shutil.rmtree(run)  # interrupted before its first checkpoint
         cmd = [*train_command(), *train_args]
-    print("$", " ".join(cmd), f">> {log}", flush=True)
-    log.parent.mkdir(parents=True, exist_ok=True)
-    start = time.perf_counter()
-    with log.open("a") as f:
-        code = subprocess.run(cmd, env=env, stdout=f, stderr=subprocess.STDOUT).returncode
-    if code != 0:
-        raise SystemExit(f"training failed ({code}): see {log}")
+    wall = run_logged(cmd, env, log, append=True)
     if not final_checkpoint(run, steps).exists():
         raise SystemExit(f"training ended without its checkpoint {final_checkpoint(run, steps)}: see {log}")
-    return time.perf_counter() - start
+    return wall

@@ -29,7 +29,8 @@ def test_a_finished_run_only_writes_the_table(tmp_path, monkeypatch):
     def no_subprocess(*a, **k):
         raise AssertionError(f"a finished stage ran again: {a}")
 
-    monkeypatch.setattr(fig12, "_run", no_subprocess)
+    monkeypatch.setattr(fig12, "run_logged", no_subprocess)
+    monkeypatch.setattr(fig12, "train_run", no_subprocess)
     assert fig12.main(["--output", str(tmp_path)]) == 0
     table = (tmp_path / "fig12_table.md").read_text()
     assert "| policy | MugHang_D0 | MugHang_Moved |" in table
