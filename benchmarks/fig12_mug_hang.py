@@ -155,7 +155,15 @@ def main(argv: list[str] | None = None) -> int:
         help="one process per env (about 1.3 GB each) instead of sync envs",
     )
     ap.add_argument("--episode-length", type=int, default=None, help="evaluation cap (default: the task's)")
+    ap.add_argument(
+        "--variants",
+        default=",".join(VARIANTS),
+        help="comma-separated evaluation tasks (the ablations need only MugHang_D0)",
+    )
     args = ap.parse_args(argv)
+    variants = [v for v in args.variants.split(",") if v]
+    if not variants or set(variants) - set(VARIANTS):
+        raise SystemExit(f"--variants {args.variants!r}: choose from {list(VARIANTS)}")
 
     out = args.output.resolve()
     env = {**os.environ, "HF_HUB_OFFLINE": "1", "WANDB_MODE": "disabled", "OMP_NUM_THREADS": "1"}
@@ -208,7 +216,7 @@ def main(argv: list[str] | None = None) -> int:
             )  # fmt: skip
             timings[f"train_{name}_{'last_part_' if resumed else ''}s"] = wall
             save()
-        for variant in VARIANTS:
+        for variant in variants:
             if variant in cells.get(name, {}):
                 continue
             cell_dir = out / "eval" / name / variant

@@ -88,3 +88,25 @@ def test_point_token_ablations_change_only_their_own_knob():
         args = specs[name]["args"]
         assert changed in args and changed not in base
         assert len(set(args) ^ set(base)) == 2, f"{name} differs from actionflow_pc in more than one knob"
+
+
+def test_variants_limits_the_evaluations_and_refuses_unknown_tasks(tmp_path, monkeypatch):
+    _finished_run(tmp_path)
+    fig12.final_checkpoint(tmp_path / "train" / "actionflow_pc_k1", 20000).mkdir(parents=True)
+    evaluated = []
+
+    def fake_eval(cmd, env, log, append=False):
+        task = next(a.split("=", 1)[1] for a in cmd if a.startswith("--env.task="))
+        out = Path(next(a.split("=", 1)[1] for a in cmd if a.startswith("--output_dir=")))
+        out.mkdir(parents=True)
+        (out / "sweep_results.json").write_text(json.dumps([{"pc_success": 40.0, "n_episodes": 50}]))
+        evaluated.append(task)
+        return 1.0
+
+    monkeypatch.setattr(fig12, "run_logged", fake_eval)
+    args = ["--output", str(tmp_path), "--policies", "actionflow_pc_k1"]
+    assert fig12.main([*args, "--variants", "MugHang_D0"]) == 0
+    assert evaluated == ["MugHang_D0"]
+    assert "| actionflow_pc_k1 | 40 (50) | - |" in (tmp_path / "fig12_table.md").read_text()
+    with pytest.raises(SystemExit, match="MugHang_Far"):
+        fig12.main([*args, "--variants", "MugHang_D0,MugHang_Far"])
