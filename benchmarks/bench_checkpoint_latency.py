@@ -1,0 +1,127 @@
+"""Chunk latency of trained checkpoints at batch 1, per number of inference steps (IS).
+
+The latency column of the few-step study (issue #21): for each checkpoint and each IS, the
+median wall time of one ``policy.predict_action_chunk`` on a real observation of the task (one
+``reset`` of the LeRobot env, through LeRobot's env and policy preprocessors, already on the
+device), with IS network calls set as the sweep sets them
+(:func:`lerobot_actionflow.evaluation.sweep.set_inference_steps`, so a midpoint checkpoint makes
+``IS / 2`` steps). Checkpoints and IS are timed round-robin, one call of each in turn, so that
+all see the same machine load; the ratios between cells are the robust figure on a shared
+machine.
+
+    python benchmarks/bench_checkpoint_latency.py --task Lift --inference-steps 1 2 4 10 \\
+        --checkpoints default=/work/study/Lift/.../pretrained_model shortcut=/.../pretrained_model \\
+        --json benchmarks/results/few_step_latency_Lift.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import statistics
+import time
+from pathlib import Path
+
+import torch
+
+from lerobot_actionflow.registry import register_all
+
+
+def load(checkpoint: str, task: str):
+    """The policy (eval mode, CPU) and one preprocessed observation of ``task`` at batch 1."""
+    from lerobot.configs.policies import PreTrainedConfig
+    from lerobot.envs.factory import make_env, make_env_pre_post_processors
+    from lerobot.envs.utils import close_envs, preprocess_observation
+    from lerobot.policies.factory import make_policy, make_pre_post_processors
+
+    from lerobot_actionflow.envs.configuration import ActionFlowEnvConfig
+
+    env_cfg = ActionFlowEnvConfig(task=task)
+    policy_cfg = PreTrainedConfig.from_pretrained(checkpoint)
+    policy_cfg.pretrained_path = Path(checkpoint)
+    policy_cfg.device = "cpu"
+    policy = make_policy(cfg=policy_cfg, env_cfg=env_cfg).eval()
+    preprocessor, _ = make_pre_post_processors(
+        policy_cfg=policy_cfg,
+        pretrained_path=checkpoint,
+        preprocessor_overrides={"device_processor": {"device": "cpu"}},
+    )
+    env_pre, _ = make_env_pre_post_processors(env_cfg=env_cfg, policy_cfg=policy_cfg)
+    envs = make_env(env_cfg, n_envs=1, use_async_envs=False)
+    try:
+        (vec_env,) = [v for tasks in envs.values() for v in tasks.values()]
+        obs, _ = vec_env.reset(seed=1000)
+        batch = preprocessor(env_pre(preprocess_observation(obs)))
+    finally:
+        close_envs(envs)
+    policy.reset()
+    return policy, batch
+
+
+def time_cells(policies: dict, steps: list[int], warmup: int, repeats: int) -> dict[str, dict]:
+    """``"<name>/IS<n>"`` -> median and p90 ms of ``predict_action_chunk``, timed round-robin."""
+    from lerobot_actionflow.evaluation.sweep import set_inference_steps
+
+    cells = [(name, n) for name in policies for n in steps]
+    times: dict[tuple[str, int], list[float]] = {c: [] for c in cells}
+    with torch.inference_mode():
+        for i in range(warmup + repeats):
+            for name, n in cells:
+                policy, batch = policies[name]
+                set_inference_steps(policy, n)
+                t0 = time.perf_counter()
+                policy.predict_action_chunk(batch)
+                if i >= warmup:
+                    times[(name, n)].append((time.perf_counter() - t0) * 1e3)
+    out = {}
+    for (name, n), ts in times.items():
+        ts.sort()
+        out[f"{name}/IS{n}"] = {
+            "median_ms": round(statistics.median(ts), 3),
+            "p90_ms": round(ts[int(0.9 * (len(ts) - 1))], 3),
+        }
+    return out
+
+
+def main(argv: list[str] | None = None) -> dict:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--task", required=True, help="env task of the observation, e.g. Lift")
+    ap.add_argument(
+        "--checkpoints", nargs="+", required=True, help="NAME=…/pretrained_model, one per candidate"
+    )
+    ap.add_argument("--inference-steps", type=int, nargs="+", default=[1, 2, 4, 10])
+    ap.add_argument("--repeats", type=int, default=50)
+    ap.add_argument("--warmup", type=int, default=5)
+    ap.add_argument("--threads", type=int, default=1, help="torch intra-op threads")
+    ap.add_argument("--json", type=Path, default=None, help="also write the report here")
+    args = ap.parse_args(argv)
+    named = {}
+    for item in args.checkpoints:
+        name, sep, path = item.partition("=")
+        if not sep or not name or not Path(path).is_dir():
+            raise SystemExit(f"--checkpoints {item!r}: expected NAME=<existing pretrained_model directory>")
+        named[name] = path
+    torch.set_num_threads(args.threads)
+    register_all()
+    policies = {name: load(path, args.task) for name, path in named.items()}
+    report = {
+        "date": time.strftime("%Y-%m-%d"),
+        "torch": torch.__version__,
+        "cpu": platform.processor() or platform.machine(),
+        "cpu_threads": torch.get_num_threads(),
+        "task": args.task,
+        "checkpoints": named,
+        "repeats": args.repeats,
+        "latency_batch1": time_cells(policies, args.inference_steps, args.warmup, args.repeats),
+    }
+    text = json.dumps(report, indent=2)
+    if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(text + "\n")
+    print(text)
+    return report
+
+
+if __name__ == "__main__":
+    main()

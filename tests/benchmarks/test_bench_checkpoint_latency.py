@@ -1,0 +1,40 @@
+"""benchmarks/bench_checkpoint_latency.py: every (checkpoint, IS) cell is timed with IS network
+calls per chunk, and a bad checkpoint argument is refused by name."""
+
+import sys
+from pathlib import Path
+from types import SimpleNamespace
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
+import bench_checkpoint_latency as bench
+
+
+class CountingPolicy:
+    """Stands in for a flow policy: records the integration steps of each chunk."""
+
+    def __init__(self, solver: str):
+        self.config = SimpleNamespace(
+            type="actionflow", solver=solver, num_inference_steps=10, time_spacing="uniform"
+        )
+        self.steps_per_chunk: list[int] = []
+
+    def predict_action_chunk(self, batch):
+        self.steps_per_chunk.append(self.config.num_inference_steps)
+
+
+def test_each_cell_runs_its_own_number_of_network_calls():
+    euler, midpoint = CountingPolicy("euler"), CountingPolicy("midpoint")
+    cells = bench.time_cells({"e": (euler, {}), "m": (midpoint, {})}, [2, 4], warmup=1, repeats=3)
+    assert sorted(cells) == ["e/IS2", "e/IS4", "m/IS2", "m/IS4"]
+    assert all(c["median_ms"] >= 0 and c["p90_ms"] >= c["median_ms"] for c in cells.values())
+    assert euler.steps_per_chunk == [2, 4] * 4  # round-robin, warmup included
+    assert midpoint.steps_per_chunk == [1, 2] * 4  # two calls per midpoint step
+
+
+def test_a_checkpoint_without_a_name_or_directory_is_refused(tmp_path):
+    with pytest.raises(SystemExit, match="no_such_dir"):
+        bench.main(["--task", "Lift", "--checkpoints", f"a={tmp_path / 'no_such_dir'}"])
+    with pytest.raises(SystemExit, match="expected NAME="):
+        bench.main(["--task", "Lift", "--checkpoints", str(tmp_path)])
