@@ -28,7 +28,9 @@ merges into the JSON under a file lock, so runs of disjoint ``--policies`` on on
 ``--policies`` also accepts the point-token ablations of ``actionflow_pc`` (not run by default):
 ``actionflow_pc_g16`` / ``actionflow_pc_g64`` (G point tokens instead of ``--groups``) and
 ``actionflow_pc_k1`` / ``actionflow_pc_k32`` (k points per group instead of ``--group-size``;
-k = 1 is bare points: each token carries only its position, no local geometry).
+k = 1 is bare points: each token carries only its position, no local geometry), and
+``actionflow_pc_m128`` (the first 128 of the recorded ``--points`` FPS-ordered points, which are
+their 128-point FPS subsample). ``--variants MugHang_D0`` evaluates the training placements only.
 
     python benchmarks/fig12_mug_hang.py --output outputs/fig12
     # tiny check that every stage runs (minutes on a CPU):
@@ -58,8 +60,16 @@ EF_CPU = ["--policy.backbone=unet", "--policy.down_dims=[64,128,256]"]
 EF_TINY = ["--policy.backbone=unet", "--policy.down_dims=[16,32,64]", "--policy.n_groups=8"]
 PC = [f"--policy.point_cloud_key={POINT_CLOUD_KEY}"]
 FIGURE = ("actionflow_pose", "actionflow_pc", "euclidean_flow_pc")
-#: ``actionflow_pc`` ablations: name suffix -> (G point tokens, k points per group); None = the CLI's.
-POINT_TOKEN_ABLATIONS = {"g16": (16, None), "g64": (64, None), "k1": (None, 1), "k32": (None, 32)}
+#: ``actionflow_pc`` ablations: name suffix -> the one ``--policy.point_cloud_<knob>`` it changes:
+#: G point tokens (``groups``), k points per group (``group_size``), or the cloud's first N of
+#: its M FPS-ordered points (``points``).
+POINT_TOKEN_ABLATIONS = {
+    "g16": ("groups", 16),
+    "g64": ("groups", 64),
+    "k1": ("group_size", 1),
+    "k32": ("group_size", 32),
+    "m128": ("points", 128),
+}
 
 
 def policies(args) -> dict[str, dict]:
@@ -68,8 +78,9 @@ def policies(args) -> dict[str, dict]:
     af = AF_TINY if args.tiny_models else AF_CPU
     ef = EF_TINY if args.tiny_models else EF_CPU
 
-    def actionflow_pc(groups: int, group_size: int) -> dict:
-        tokens = [f"--policy.point_cloud_groups={groups}", f"--policy.point_cloud_group_size={group_size}"]
+    def actionflow_pc(**knobs) -> dict:
+        knobs = {"groups": args.groups, "group_size": args.group_size, **knobs}
+        tokens = [f"--policy.point_cloud_{knob}={value}" for knob, value in knobs.items()]
         return {
             "type": "actionflow",
             "args": [*af, *PC, *tokens, "--policy.pose_entities=[0]"],
@@ -78,15 +89,15 @@ def policies(args) -> dict[str, dict]:
 
     table = {
         "actionflow_pose": {"type": "actionflow", "args": af, "point_cloud": False},
-        "actionflow_pc": actionflow_pc(args.groups, args.group_size),
+        "actionflow_pc": actionflow_pc(),
         "euclidean_flow_pc": {
             "type": "euclidean_flow",
             "args": [*ef, *PC, "--policy.use_environment_state=false"],
             "point_cloud": True,
         },
     }
-    for suffix, (groups, group_size) in POINT_TOKEN_ABLATIONS.items():
-        table[f"actionflow_pc_{suffix}"] = actionflow_pc(groups or args.groups, group_size or args.group_size)
+    for suffix, (knob, value) in POINT_TOKEN_ABLATIONS.items():
+        table[f"actionflow_pc_{suffix}"] = actionflow_pc(**{knob: value})
     return table
 
 

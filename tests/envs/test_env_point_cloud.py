@@ -175,6 +175,17 @@ def test_fps_is_deterministic_per_seed():
     assert len(seeds) > 1  # the seed picks the start
 
 
+@pytest.mark.parametrize("k", [300, 20])  # more points than the sample, and fewer (cyclic)
+def test_a_prefix_of_an_fps_cloud_is_the_smaller_fps_cloud(k):
+    """What ``point_cloud_points`` relies on: the first N of an M-point sample = the N-point sample."""
+    pts = np.random.default_rng(4).uniform(size=(k, 3))
+    full = farthest_point_sample(pts, 64, seed=3)
+    for n in (1, 16, 40, 64):
+        np.testing.assert_array_equal(full[:n], farthest_point_sample(pts, n, seed=3))
+    shuffled = np.random.default_rng(5).permutation(full)  # control: another order of the same points
+    assert not np.array_equal(shuffled[:16], farthest_point_sample(pts, 16, seed=3))
+
+
 def test_fps_pads_by_cyclic_repetition_when_points_are_few():
     pts = np.random.default_rng(3).uniform(size=(5, 3))
     idx = farthest_point_sample(pts, 12)

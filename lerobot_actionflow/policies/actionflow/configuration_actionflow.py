@@ -119,6 +119,10 @@ class ActionflowConfig(PreTrainedConfig):
             centre (from the latest observation step), posed at (EEF rotation, centre), encoded
             by a PointNet of hidden width ``point_cloud_width`` over the offsets in that frame
             (:mod:`lerobot_actionflow.nn.point_tokens`); equivariance stays exact.
+        point_cloud_points: read only the first N rows of the cloud; None (default): all M. The
+            clouds of :mod:`lerobot_actionflow.envs.point_cloud` are in farthest-point order, so
+            their first N rows are their N-point FPS subsample: the number of points is a
+            policy option, without recording the data again.
         wrist_focus_camera, wrist_focus_size, wrist_focus_threshold: the image trick of
             App. G.3 (:mod:`lerobot_actionflow.policies.wrist_focus`): once the gripper opening
             from ``observation.state`` is below the threshold (metres), the named camera's
@@ -203,6 +207,7 @@ class ActionflowConfig(PreTrainedConfig):
     point_cloud_groups: int = 32
     point_cloud_group_size: int = 16
     point_cloud_width: int = 64
+    point_cloud_points: int | None = None
 
     wrist_focus_camera: str | None = None
     wrist_focus_size: int = 30
@@ -289,6 +294,13 @@ class ActionflowConfig(PreTrainedConfig):
         validate_point_cloud_fields(
             self, ("point_cloud_groups", "point_cloud_group_size", "point_cloud_width")
         )
+        if self.point_cloud_points is not None:
+            require_ints(
+                self,
+                ("point_cloud_points",),
+                max(self.point_cloud_groups, self.point_cloud_group_size),
+                " (at least the groups and the group size), or None for all of the cloud's points",
+            )
         validate_wrist_focus_fields(self)
         for kind in ("STATE", "ACTION"):
             mode = self.normalization_mapping.get(kind, NormalizationMode.IDENTITY)
@@ -373,7 +385,7 @@ class ActionflowConfig(PreTrainedConfig):
         check_point_cloud_feature(
             self.input_features,
             self.point_cloud_key,
-            max(self.point_cloud_groups, self.point_cloud_group_size),
+            self.point_cloud_points or max(self.point_cloud_groups, self.point_cloud_group_size),
         )
         check_wrist_focus_features(self)
 
