@@ -11,6 +11,7 @@ machine.
 
     python benchmarks/bench_checkpoint_latency.py --task Lift --inference-steps 1 2 4 10 \\
         --checkpoints default=/work/study/Lift/.../pretrained_model shortcut=/.../pretrained_model \\
+            solver_midpoint=/work/study/Lift/.../pretrained_model --midpoint solver_midpoint \\
         --json benchmarks/results/few_step_latency_Lift.json
 """
 
@@ -59,17 +60,24 @@ def load(checkpoint: str, task: str):
     return policy, batch
 
 
-def time_cells(policies: dict, steps: list[int], warmup: int, repeats: int) -> dict[str, dict]:
-    """``"<name>/IS<n>"`` -> median and p90 ms of ``predict_action_chunk``, timed round-robin."""
+def time_cells(
+    policies: dict, steps: list[int], warmup: int, repeats: int, solvers: dict[str, str] | None = None
+) -> dict[str, dict]:
+    """``"<name>/IS<n>"`` -> median and p90 ms of ``predict_action_chunk``, timed round-robin.
+    ``solvers``: name -> ODE solver replacing the checkpoint's; a midpoint policy skips odd IS."""
     from lerobot_actionflow.evaluation.sweep import set_inference_steps
+    from lerobot_actionflow.flow.schedules import network_calls
 
-    cells = [(name, n) for name in policies for n in steps]
+    solvers = solvers or {}
+    for name, (policy, _) in policies.items():
+        solvers.setdefault(name, getattr(policy.config, "solver", "euler"))
+    cells = [(name, n) for name in policies for n in steps if n % network_calls(1, solvers[name]) == 0]
     times: dict[tuple[str, int], list[float]] = {c: [] for c in cells}
     with torch.inference_mode():
         for i in range(warmup + repeats):
             for name, n in cells:
                 policy, batch = policies[name]
-                set_inference_steps(policy, n)
+                set_inference_steps(policy, n, solver=solvers[name])
                 t0 = time.perf_counter()
                 policy.predict_action_chunk(batch)
                 if i >= warmup:
@@ -90,6 +98,9 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument(
         "--checkpoints", nargs="+", required=True, help="NAME=…/pretrained_model, one per candidate"
     )
+    ap.add_argument(
+        "--midpoint", nargs="*", default=[], help="names sampled with midpoint steps (IS = 2 x steps)"
+    )
     ap.add_argument("--inference-steps", type=int, nargs="+", default=[1, 2, 4, 10])
     ap.add_argument("--repeats", type=int, default=50)
     ap.add_argument("--warmup", type=int, default=5)
@@ -102,6 +113,10 @@ def main(argv: list[str] | None = None) -> dict:
         if not sep or not name or not Path(path).is_dir():
             raise SystemExit(f"--checkpoints {item!r}: expected NAME=<existing pretrained_model directory>")
         named[name] = path
+    if set(args.midpoint) - set(named):
+        raise SystemExit(
+            f"--midpoint {sorted(set(args.midpoint) - set(named))}: not among the --checkpoints names"
+        )
     torch.set_num_threads(args.threads)
     register_all()
     policies = {name: load(path, args.task) for name, path in named.items()}
@@ -113,7 +128,10 @@ def main(argv: list[str] | None = None) -> dict:
         "task": args.task,
         "checkpoints": named,
         "repeats": args.repeats,
-        "latency_batch1": time_cells(policies, args.inference_steps, args.warmup, args.repeats),
+        "midpoint": args.midpoint,
+        "latency_batch1": time_cells(
+            policies, args.inference_steps, args.warmup, args.repeats, {n: "midpoint" for n in args.midpoint}
+        ),
     }
     text = json.dumps(report, indent=2)
     if args.json:

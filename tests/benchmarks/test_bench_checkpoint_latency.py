@@ -31,6 +31,9 @@ def test_each_cell_runs_its_own_number_of_network_calls():
     assert all(c["median_ms"] >= 0 and c["p90_ms"] >= c["median_ms"] for c in cells.values())
     assert euler.steps_per_chunk == [2, 4] * 4  # round-robin, warmup included
     assert midpoint.steps_per_chunk == [1, 2] * 4  # two calls per midpoint step
+    override = CountingPolicy("euler")
+    assert sorted(bench.time_cells({"o": (override, {})}, [1, 2], 0, 1, {"o": "midpoint"})) == ["o/IS2"]
+    assert override.steps_per_chunk == [1]  # odd IS skipped: a midpoint step makes two calls
 
 
 def test_a_checkpoint_without_a_name_or_directory_is_refused(tmp_path):
@@ -38,3 +41,5 @@ def test_a_checkpoint_without_a_name_or_directory_is_refused(tmp_path):
         bench.main(["--task", "Lift", "--checkpoints", f"a={tmp_path / 'no_such_dir'}"])
     with pytest.raises(SystemExit, match="expected NAME="):
         bench.main(["--task", "Lift", "--checkpoints", str(tmp_path)])
+    with pytest.raises(SystemExit, match=r"--midpoint \['b'\]"):
+        bench.main(["--task", "Lift", "--checkpoints", f"a={tmp_path}", "--midpoint", "b"])
