@@ -62,13 +62,13 @@ PC = [f"--policy.point_cloud_key={POINT_CLOUD_KEY}"]
 FIGURE = ("actionflow_pose", "actionflow_pc", "euclidean_flow_pc")
 #: ``actionflow_pc`` ablations: name suffix -> the one ``--policy.point_cloud_<knob>`` it changes:
 #: G point tokens (``groups``), k points per group (``group_size``), or the cloud's first N of
-#: its M FPS-ordered points (``points``).
+#: its M FPS-ordered points (``prefix``, below ``--points``).
 POINT_TOKEN_ABLATIONS = {
     "g16": ("groups", 16),
     "g64": ("groups", 64),
     "k1": ("group_size", 1),
     "k32": ("group_size", 32),
-    "m128": ("points", 128),
+    "m128": ("prefix", 128),
 }
 
 
@@ -174,7 +174,8 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     variants = [v for v in args.variants.split(",") if v]
     if not variants or set(variants) - set(VARIANTS):
-        raise SystemExit(f"--variants {args.variants!r}: choose from {list(VARIANTS)}")
+        unknown = sorted(set(variants) - set(VARIANTS)) or "none given"
+        raise SystemExit(f"--variants: unknown tasks {unknown}; choose from {list(VARIANTS)}")
 
     out = args.output.resolve()
     env = {**os.environ, "HF_HUB_OFFLINE": "1", "WANDB_MODE": "disabled", "OMP_NUM_THREADS": "1"}
@@ -208,6 +209,12 @@ def main(argv: list[str] | None = None) -> int:
     unknown = sorted(set(names) - set(table))
     if unknown:
         raise SystemExit(f"unknown policies {unknown}; choose from {sorted(table)}")
+    for suffix, (knob, value) in POINT_TOKEN_ABLATIONS.items():
+        if f"actionflow_pc_{suffix}" in names and knob == "prefix" and value >= args.points:
+            raise SystemExit(
+                f"actionflow_pc_{suffix} reads the first {value} points of each cloud: "
+                f"it needs --points > {value}, got {args.points}"
+            )
     for name in names:
         spec = table[name]
         run = out / "train" / name

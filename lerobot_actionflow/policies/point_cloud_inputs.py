@@ -49,5 +49,5 @@ def check_point_cloud_feature(features: Mapping[str, Any] | None, key: str | Non
     if shape[0] < min_points:
         raise ValueError(
             f"point-cloud feature '{key}' has M={shape[0]} points, fewer than the {min_points} the "
-            f"policy reads (point_cloud_points, or at least its groups and group size)"
+            f"policy reads (point_cloud_prefix, or at least its groups and group size)"
         )

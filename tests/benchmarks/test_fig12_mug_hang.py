@@ -84,7 +84,7 @@ def test_point_token_ablations_change_only_their_own_knob():
         "actionflow_pc_g64": "--policy.point_cloud_groups=64",
         "actionflow_pc_k1": "--policy.point_cloud_group_size=1",
         "actionflow_pc_k32": "--policy.point_cloud_group_size=32",
-        "actionflow_pc_m128": "--policy.point_cloud_points=128",
+        "actionflow_pc_m128": "--policy.point_cloud_prefix=128",
     }.items():
         args = specs[name]["args"]
         assert changed in args and changed not in base
@@ -110,5 +110,7 @@ def test_variants_limits_the_evaluations_and_refuses_unknown_tasks(tmp_path, mon
     assert fig12.main([*args, "--variants", "MugHang_D0"]) == 0
     assert evaluated == ["MugHang_D0"]
     assert "| actionflow_pc_k1 | 40 (50) | - |" in (tmp_path / "fig12_table.md").read_text()
-    with pytest.raises(SystemExit, match="MugHang_Far"):
+    with pytest.raises(SystemExit, match=r"unknown tasks \['MugHang_Far'\]"):
         fig12.main([*args, "--variants", "MugHang_D0,MugHang_Far"])
+    with pytest.raises(SystemExit, match="needs --points > 128, got 128"):
+        fig12.main(["--output", str(tmp_path), "--policies", "actionflow_pc_m128", "--points", "128"])

@@ -119,7 +119,8 @@ class ActionflowConfig(PreTrainedConfig):
             centre (from the latest observation step), posed at (EEF rotation, centre), encoded
             by a PointNet of hidden width ``point_cloud_width`` over the offsets in that frame
             (:mod:`lerobot_actionflow.nn.point_tokens`); equivariance stays exact.
-        point_cloud_points: read only the first N rows of the cloud; None (default): all M. The
+        point_cloud_prefix: read only the first N rows of the ``(M, 3)`` cloud, N <= M (the env's
+            ``point_cloud_points`` stays the recorded M); None (default): all M. The
             clouds of :mod:`lerobot_actionflow.envs.point_cloud` are in farthest-point order, so
             their first N rows are their N-point FPS subsample: the number of points is a
             policy option, without recording the data again.
@@ -207,7 +208,7 @@ class ActionflowConfig(PreTrainedConfig):
     point_cloud_groups: int = 32
     point_cloud_group_size: int = 16
     point_cloud_width: int = 64
-    point_cloud_points: int | None = None
+    point_cloud_prefix: int | None = None
 
     wrist_focus_camera: str | None = None
     wrist_focus_size: int = 30
@@ -294,12 +295,17 @@ class ActionflowConfig(PreTrainedConfig):
         validate_point_cloud_fields(
             self, ("point_cloud_groups", "point_cloud_group_size", "point_cloud_width")
         )
-        if self.point_cloud_points is not None:
+        if self.point_cloud_prefix is not None:
+            require(
+                self.point_cloud_key is not None,
+                f"`point_cloud_prefix` is {self.point_cloud_prefix!r} but `point_cloud_key` is None: "
+                "name the cloud to read, or leave point_cloud_prefix unset",
+            )
             require_ints(
                 self,
-                ("point_cloud_points",),
+                ("point_cloud_prefix",),
                 max(self.point_cloud_groups, self.point_cloud_group_size),
-                " (at least the groups and the group size), or None for all of the cloud's points",
+                "; it must cover point_cloud_groups and point_cloud_group_size (None reads all M points)",
             )
         validate_wrist_focus_fields(self)
         for kind in ("STATE", "ACTION"):
@@ -385,7 +391,7 @@ class ActionflowConfig(PreTrainedConfig):
         check_point_cloud_feature(
             self.input_features,
             self.point_cloud_key,
-            self.point_cloud_points or max(self.point_cloud_groups, self.point_cloud_group_size),
+            self.point_cloud_prefix or max(self.point_cloud_groups, self.point_cloud_group_size),
         )
         check_wrist_focus_features(self)
 

@@ -521,11 +521,11 @@ class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
         )
 
     def _latest_points(self, obs: dict[str, Tensor]) -> Tensor | None:
-        """The latest step's checked point cloud ``(B, M, 3)`` (its first ``point_cloud_points``
-        rows when set), or None when the policy reads none."""
+        """The latest step's checked point cloud ``(B, N, 3)``: its first N = ``point_cloud_prefix``
+        rows, or all M when that is None; None when the policy reads no cloud."""
         if self.point_cloud_key is None:
             return None
-        return obs[self.point_cloud_key][:, -1, : self.config.point_cloud_points]
+        return obs[self.point_cloud_key][:, -1, : self.config.point_cloud_prefix]
 
     def _image_features(self, obs: dict[str, Tensor]) -> Tensor | None:
         """ResNet18 features ``(B, n_obs_steps, N_cam, F)`` of the checked images, or None."""

@@ -113,8 +113,8 @@ def test_control_world_frame_offsets_break_equivariance(monkeypatch):
     assert _equivariance_error(policy, batch, r_d, p_d, gen) > 1e-3
 
 
-def test_point_cloud_points_reads_only_the_first_rows_and_stays_equivariant():
-    policy = _policy(point_cloud_points=20)
+def test_point_cloud_prefix_reads_only_the_first_rows_and_stays_equivariant():
+    policy = _policy(point_cloud_prefix=20)
     gen = torch.Generator().manual_seed(11)
     batch = _batch(policy, gen)
     noise = se3_flow.draw_local_noise(3, policy.config.horizon, 0.1, generator=gen)
@@ -122,6 +122,10 @@ def test_point_cloud_points_reads_only_the_first_rows_and_stays_equivariant():
     tail_moved = {**batch, POINT_CLOUD_KEY: batch[POINT_CLOUD_KEY].clone()}
     tail_moved[POINT_CLOUD_KEY][..., 20:, :] += 0.5
     torch.testing.assert_close(policy.predict_action_chunk(tail_moved, noise=noise), a, rtol=0, atol=0)
+    whole = _policy()  # control: the same weights reading all M rows see the tail move
+    assert (
+        whole.predict_action_chunk(tail_moved, noise=noise) - whole.predict_action_chunk(batch, noise=noise)
+    ).abs().max() > 1e-3
     head_moved = {**batch, POINT_CLOUD_KEY: batch[POINT_CLOUD_KEY].clone()}
     head_moved[POINT_CLOUD_KEY][..., :10, :] += 0.05  # control: the rows it reads do matter
     assert (policy.predict_action_chunk(head_moved, noise=noise) - a).abs().max() > 1e-3
@@ -129,11 +133,13 @@ def test_point_cloud_points_reads_only_the_first_rows_and_stays_equivariant():
     assert _equivariance_error(policy, batch, r_d, p_d, gen) <= 1e-5
 
 
-def test_point_cloud_points_outside_the_groups_or_the_cloud_is_refused_by_name():
-    with pytest.raises(ValueError, match=r"`point_cloud_points` must be an integer >= 8"):
-        _config(point_cloud_points=4)  # fewer than the 8 groups
+def test_point_cloud_prefix_outside_the_groups_or_the_cloud_is_refused_by_name():
+    with pytest.raises(ValueError, match=r"`point_cloud_prefix` must be an integer >= 8"):
+        _config(point_cloud_prefix=4)  # fewer than the 8 groups
+    with pytest.raises(ValueError, match=r"`point_cloud_prefix` is 20 but `point_cloud_key` is None"):
+        small_config(point_cloud_prefix=20)
     with pytest.raises(ValueError, match=r"M=48 points, fewer than the 64"):
-        ActionflowPolicy(_config(point_cloud_points=64))
+        ActionflowPolicy(_config(point_cloud_prefix=64))
 
 
 def test_select_action_reads_float16_clouds():
