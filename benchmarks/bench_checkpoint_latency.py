@@ -7,7 +7,8 @@ device), with IS network calls set as the sweep sets them
 (:func:`lerobot_actionflow.evaluation.sweep.set_inference_steps`, so a midpoint checkpoint makes
 ``IS / 2`` steps). Checkpoints and IS are timed round-robin, one call of each in turn, so that
 all see the same machine load; the ratios between cells are the robust figure on a shared
-machine.
+machine. The observation has poses, state and the task's cameras, no point cloud: a checkpoint
+that reads a cloud is not timed by this script.
 
     python benchmarks/bench_checkpoint_latency.py --task Lift --inference-steps 1 2 4 10 \\
         --checkpoints default=/work/study/Lift/.../pretrained_model shortcut=/.../pretrained_model \\
@@ -66,12 +67,17 @@ def time_cells(
     """``"<name>/IS<n>"`` -> median and p90 ms of ``predict_action_chunk``, timed round-robin.
     ``solvers``: name -> ODE solver replacing the checkpoint's; a midpoint policy skips odd IS."""
     from lerobot_actionflow.evaluation.sweep import set_inference_steps
-    from lerobot_actionflow.flow.schedules import network_calls
 
-    solvers = solvers or {}
+    solvers = dict(solvers or {})
+    cells = []
     for name, (policy, _) in policies.items():
         solvers.setdefault(name, getattr(policy.config, "solver", "euler"))
-    cells = [(name, n) for name in policies for n in steps if n % network_calls(1, solvers[name]) == 0]
+        for n in steps:
+            try:  # e.g. an odd IS with midpoint steps: not a cell of this policy
+                set_inference_steps(policy, n, solver=solvers[name])
+            except ValueError:
+                continue
+            cells.append((name, n))
     times: dict[tuple[str, int], list[float]] = {c: [] for c in cells}
     with torch.inference_mode():
         for i in range(warmup + repeats):
@@ -87,7 +93,9 @@ def time_cells(
         ts.sort()
         out[f"{name}/IS{n}"] = {
             "median_ms": round(statistics.median(ts), 3),
-            "p90_ms": round(ts[int(0.9 * (len(ts) - 1))], 3),
+            "p90_ms": round(statistics.quantiles(ts, n=10, method="inclusive")[-1], 3)
+            if len(ts) > 1
+            else ts[0],
         }
     return out
 
@@ -107,11 +115,18 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--threads", type=int, default=1, help="torch intra-op threads")
     ap.add_argument("--json", type=Path, default=None, help="also write the report here")
     args = ap.parse_args(argv)
+    if args.repeats < 1 or args.warmup < 0 or min(args.inference_steps) < 1:
+        raise SystemExit(
+            f"need --repeats >= 1, --warmup >= 0 and --inference-steps >= 1, got {args.repeats}, "
+            f"{args.warmup}, {args.inference_steps}"
+        )
     named = {}
     for item in args.checkpoints:
         name, sep, path = item.partition("=")
         if not sep or not name or not Path(path).is_dir():
             raise SystemExit(f"--checkpoints {item!r}: expected NAME=<existing pretrained_model directory>")
+        if name in named:
+            raise SystemExit(f"--checkpoints: the name {name!r} is given twice")
         named[name] = path
     if set(args.midpoint) - set(named):
         raise SystemExit(
@@ -128,6 +143,7 @@ def main(argv: list[str] | None = None) -> dict:
         "task": args.task,
         "checkpoints": named,
         "repeats": args.repeats,
+        "warmup": args.warmup,
         "midpoint": args.midpoint,
         "latency_batch1": time_cells(
             policies, args.inference_steps, args.warmup, args.repeats, {n: "midpoint" for n in args.midpoint}

@@ -19,7 +19,7 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from study import ABLATIONS, format_summary, summarise
+from study import ABLATIONS, format_summary, study_cells, summarise
 
 #: The candidates of issue #21 (study settings) and the baseline they are compared with.
 FEW_STEP = ("default", "time_logit_normal", "noise_concentrated", "shortcut", "solver_midpoint")
@@ -29,14 +29,7 @@ RESULTS = Path(__file__).resolve().parent / "results"
 def collect(task: str, results: Path) -> dict:
     """``{"cells", "summary"}`` of the few-step candidates on ``task`` (its own evaluation task)."""
     data = json.loads((results / f"{task}.json").read_text())
-    cells = [
-        c
-        for c in data["cells"]
-        if c["study"] == "ablation"
-        and c["setting"] in FEW_STEP
-        and c["eval_task"] == task
-        and c["time_spacing"] == "checkpoint"
-    ]
+    cells = [c for c in study_cells(data["cells"], "ablation", task) if c["setting"] in FEW_STEP]
     return {"cells": cells, "summary": summarise(cells, "ablation", task)}
 
 
@@ -74,6 +67,8 @@ def main(argv: list[str] | None = None) -> dict:
     latency = {}
     for path in args.latency:
         report = json.loads(path.read_text())
+        if report["task"] in latency:
+            raise SystemExit(f"--latency: two reports for task {report['task']!r} ({path} is the second)")
         latency[report["task"]] = report
     out = {
         "settings": {s: ABLATIONS[s].why for s in FEW_STEP},

@@ -186,15 +186,23 @@ def mean_std(values: list[float]) -> tuple[float, float]:
     return statistics.fmean(values), statistics.pstdev(values) if len(values) > 1 else 0.0
 
 
-def summarise(cells: list[dict], study: str, eval_task: str, time_spacing: str = "checkpoint") -> list[dict]:
-    """Per (setting, IS): success mean +- std over seeds at the last checkpoint and at the best
-    evaluated step (highest mean over the seeds that have it), with the seeds counted."""
-    rows = []
-    chosen = [
+def study_cells(
+    cells: list[dict], study: str, eval_task: str, time_spacing: str = "checkpoint"
+) -> list[dict]:
+    """The cells of ``study`` evaluated on ``eval_task`` with ``time_spacing``."""
+    return [
         c
         for c in cells
         if c["study"] == study and c["eval_task"] == eval_task and c["time_spacing"] == time_spacing
     ]
+
+
+def summarise(cells: list[dict], study: str, eval_task: str, time_spacing: str = "checkpoint") -> list[dict]:
+    """Per (setting, IS): success mean +- std over seeds at the last checkpoint and at the best
+    evaluated step (highest mean over the seeds that have it), with the seeds counted, over
+    :func:`study_cells`."""
+    rows = []
+    chosen = study_cells(cells, study, eval_task, time_spacing)
     groups: dict[tuple[str, int], list[dict]] = {}
     for c in chosen:
         groups.setdefault((c["setting"], c["inference_steps"]), []).append(c)

@@ -41,5 +41,9 @@ def test_a_checkpoint_without_a_name_or_directory_is_refused(tmp_path):
         bench.main(["--task", "Lift", "--checkpoints", f"a={tmp_path / 'no_such_dir'}"])
     with pytest.raises(SystemExit, match="expected NAME="):
         bench.main(["--task", "Lift", "--checkpoints", str(tmp_path)])
+    with pytest.raises(SystemExit, match="the name 'a' is given twice"):
+        bench.main(["--task", "Lift", "--checkpoints", f"a={tmp_path}", f"a={tmp_path}"])
+    with pytest.raises(SystemExit, match=r"--repeats >= 1.*got 0"):
+        bench.main(["--task", "Lift", "--checkpoints", f"a={tmp_path}", "--repeats", "0"])
     with pytest.raises(SystemExit, match=r"--midpoint \['b'\]"):
         bench.main(["--task", "Lift", "--checkpoints", f"a={tmp_path}", "--midpoint", "b"])
