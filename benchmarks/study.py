@@ -107,6 +107,17 @@ ABLATIONS: dict[str, Setting] = {
         ("--policy.few_step_objective=shortcut",),
         "shortcut self-consistency on 1/4 of each batch, step size 1/K at sampling (uniform grid only)",
     ),
+    "time_beta_noise": Setting(
+        "actionflow",
+        ("--policy.train_time_distribution=beta", "--policy.train_time_beta=[1.0,1.5]"),
+        "training times Beta(1, 1.5): more weight near t = 0 (noise), where few steps are longest",
+    ),
+    "noise_sigma_0.05": Setting(
+        "actionflow", ("--policy.noise_sigma=0.05",), "initial positions EEF + N(0, 0.05^2) instead of 0.1^2"
+    ),
+    "noise_sigma_0.2": Setting(
+        "actionflow", ("--policy.noise_sigma=0.2",), "initial positions EEF + N(0, 0.2^2) instead of 0.1^2"
+    ),
 }
 
 #: The converged comparison (issue #17, part 2): the three policies at the CPU size.

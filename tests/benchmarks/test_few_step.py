@@ -1,6 +1,7 @@
-"""benchmarks/few_step.py: the few-step file holds every candidate cell of the training task and
-nothing else, the table gives mean +- std over seeds with the latency beside it, and a missing
-task is named."""
+"""benchmarks/few_step.py: the few-step file holds every candidate cell of the training task, the
+default's exponential-grid cells and the reference policies' cells, and nothing else; the table
+gives mean +- std over seeds with the latency beside it; the target check compares IS = 2 with
+the candidate's own IS = 10 and with the references; a missing task is named."""
 
 import json
 import sys
@@ -12,8 +13,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
 import few_step
 
 
-def _cell(setting, seed, k, success, eval_task="Lift", spacing="checkpoint", step=3000):
-    return {"study": "ablation", "setting": setting, "seed": seed, "step": step, "eval_task": eval_task,
+def _cell(setting, seed, k, success, eval_task="Lift", spacing="checkpoint", step=3000, study="ablation"):
+    return {"study": study, "setting": setting, "seed": seed, "step": step, "eval_task": eval_task,
             "inference_steps": k, "time_spacing": spacing, "n_episodes": 50, "eval_seed": 1000,
             "pc_success": success}  # fmt: skip
 
@@ -21,26 +22,57 @@ def _cell(setting, seed, k, success, eval_task="Lift", spacing="checkpoint", ste
 def test_the_file_keeps_the_candidates_cells_and_the_table_their_seed_statistics(tmp_path):
     cells = [_cell("noise_concentrated", s, 2, v) for s, v in ((0, 90.0), (1, 100.0))]
     cells += [_cell("noise_concentrated", 0, 2, 10.0, step=1000)]  # an earlier checkpoint
+    grid = [_cell("default", 0, 2, 70.0, spacing="exponential")]  # the time-grid row
+    reference = [_cell("euclidean_flow", 0, 2, 80.0, study="comparison")]
     others = [
         _cell("squash_off", 0, 2, 50.0),  # not a few-step candidate
         _cell("default", 0, 2, 60.0, eval_task="Lift_scene"),  # another evaluation task
-        _cell("default", 0, 2, 70.0, spacing="exponential"),  # another time grid
+        _cell("squash_off", 0, 2, 20.0, spacing="exponential"),  # not the default on that grid
+        _cell("actionflow", 0, 2, 30.0, study="comparison"),  # not a reference policy
     ]
-    (tmp_path / "Lift.json").write_text(json.dumps({"task": "Lift", "cells": cells + others}))
+    stored = {"task": "Lift", "cells": cells + grid + reference + others}
+    (tmp_path / "Lift.json").write_text(json.dumps(stored))
     latency = tmp_path / "lat.json"
     latency.write_text(
         json.dumps({"task": "Lift", "latency_batch1": {"noise_concentrated/IS2": {"median_ms": 7.25}}})
     )
     out = few_step.main(["--tasks", "Lift", "--results", str(tmp_path), "--latency", str(latency)])
     assert json.loads((tmp_path / "few_step.json").read_text()) == json.loads(json.dumps(out))
-    assert out["tasks"]["Lift"]["cells"] == cells
-    (row,) = out["tasks"]["Lift"]["summary"]
-    assert (row["setting"], row["last_step"], row["last"], row["last_seeds"]) == (
-        "noise_concentrated", 3000, (95.0, 5.0), 2
-    )  # fmt: skip
+    assert out["tasks"]["Lift"]["cells"] == cells + grid + reference
+    rows = {r["setting"]: r for r in out["tasks"]["Lift"]["summary"]}
+    assert set(rows) == {"noise_concentrated", few_step.EXPONENTIAL_ROW, "euclidean_flow"}
+    row = rows["noise_concentrated"]
+    assert (row["last_step"], row["last"], row["last_seeds"]) == (3000, (95.0, 5.0), 2)
+    assert rows[few_step.EXPONENTIAL_ROW]["last"] == (70.0, 0.0)
     text = few_step.format_task("Lift", out["tasks"]["Lift"], out["latency"]["Lift"])
     assert "| noise_concentrated | 95 +- 5 (2; 3000) |" in text
+    assert f"| {few_step.EXPONENTIAL_ROW} | 70 +- 0 (1; 3000) |" in text
+    assert "| euclidean_flow | 80 +- 0 (1; 3000) |" in text
     assert "| noise_concentrated | 7.2 |" in text
+
+
+def _summary_row(setting, k, mean):
+    return {"setting": setting, "inference_steps": k, "last": (mean, 0.0)}
+
+
+@pytest.mark.parametrize(
+    ("is2", "is10", "reference", "within", "above"),
+    [
+        (95.0, 100.0, 95.0, True, True),  # the target's edges: 5 points, equal to the reference
+        (94.0, 100.0, 95.0, False, False),  # controls: one point past each edge
+        (90.0, 90.0, 99.0, True, False),
+    ],
+)
+def test_target_is_a_gap_of_5_points_or_less_and_the_reference_or_more(is2, is10, reference, within, above):
+    summary = [_summary_row("noise_concentrated", 2, is2), _summary_row("noise_concentrated", 10, is10),
+               _summary_row("noise_concentrated", 1, 0.0), _summary_row("diffusion", 2, reference),
+               _summary_row("shortcut", 2, 99.0)]  # fmt: skip
+    (check,) = few_step.targets(summary)  # shortcut has no IS = 10 row: no check; diffusion is a reference
+    assert (check["setting"], check["gap"], check["within_gap"]) == ("noise_concentrated", is10 - is2, within)
+    assert check["at_or_above"] == {"diffusion": above}
+    table = few_step.format_targets([check], summary)
+    assert f">= diffusion at IS=2 ({reference:.0f})" in table
+    assert table.splitlines()[-1].endswith(f"| {'yes' if within else 'no'} | {'yes' if above else 'no'} |")
 
 
 def test_a_task_without_results_is_named(tmp_path):

@@ -6,7 +6,7 @@ from pathlib import Path
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
-from study import ABLATIONS, ResultStore, cell_key, mean_std, summarise
+from study import ABLATIONS, COMMON, CPU_SIZE, ResultStore, cell_key, mean_std, summarise
 
 
 def _cell(setting, seed, step, k, pc, study="ablation", task="Lift", spacing="checkpoint"):
@@ -63,17 +63,23 @@ def test_mean_std_is_the_population_spread():
 
 
 def test_ablation_settings_parse_as_actionflow_configs():
-    """Every override names a real ActionFlow config field with a valid value."""
+    """Every override names a real ActionFlow config field with a valid value, parsed as
+    ``lerobot-train`` parses it (draccus) after the CPU size preset, and a setting's overrides
+    change the config that the preset alone gives (``default`` has none)."""
+    import draccus
+
     from lerobot_actionflow.policies.actionflow.configuration_actionflow import ActionflowConfig
 
+    def parse(flags):
+        flags = (*COMMON, *CPU_SIZE["actionflow"], *flags)
+        args = ["--device=cpu", *(f.replace("--policy.", "--", 1) for f in flags)]
+        return draccus.parse(ActionflowConfig, args=args)  # raises on an unknown field or a refused value
+
+    base = parse([])
     for name, setting in ABLATIONS.items():
-        kwargs = {}
-        for flag in setting.overrides:
-            key, value = flag.removeprefix("--policy.").split("=")
-            field_type = type(getattr(ActionflowConfig(), key))
-            kwargs[key] = value == "true" if field_type is bool else field_type(value)
-        ActionflowConfig(**kwargs)  # raises on an unknown field or a refused value
         assert setting.policy == "actionflow", name
+        config = parse(setting.overrides)
+        assert (config != base) == bool(setting.overrides), name
 
 
 def test_plot_study_writes_a_png(tmp_path):
