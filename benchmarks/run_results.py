@@ -26,7 +26,9 @@ store and the summaries): ``--study ablation`` (ActionFlow's defaults) or ``--st
 (all of them, or the last with ``--eval-checkpoints last``) on the task and ``--variants``, at
 every IS of ``--inference-steps`` and every grid of ``--time-spacings``. Each evaluation is one
 cell of ``--results`` (default ``benchmarks/results/<task>.json``), written as it finishes; a
-rerun skips the cells and the training runs that exist. Prints mean +- std over seeds.
+rerun skips the cells and the training runs that exist. Prints mean +- std over seeds, and for
+runs evaluated at several checkpoints the success against steps with the step from which it
+stopped rising (:func:`study.plateau_step`: "converged" as a measurement).
 ``--report`` prints the tables (and writes ``--plot``) from the stored cells without training or
 evaluating anything. ``--cameras wrist,agentview --image-size 80`` records a second dataset with
 those cameras and trains and evaluates every setting on it (setting names get
@@ -52,6 +54,7 @@ from study import (
     STUDIES,
     CellKey,
     ResultStore,
+    format_curves,
     format_summary,
     plot_study,
     summarise,
@@ -242,6 +245,9 @@ def run_study(args, env: dict, data: Path, repo_id: str, collect) -> int:
                 print(f"\n{args.study} on {eval_task} (time grid: {spacing}); mean +- std over seeds "
                       "(seeds; checkpoint step)")  # fmt: skip
                 print(format_summary(rows))
+                curves = format_curves(cells, args.study, eval_task) if spacing == "checkpoint" else ""
+                if curves:
+                    print(f"\nsuccess against training steps on {eval_task}\n{curves}")
         if args.plot is not None and "checkpoint" in spacings:
             path = args.plot.with_name(f"{args.plot.stem}_{eval_task}{args.plot.suffix}")
             plot_study(cells, args.study, eval_task, path, f"{args.study}: {eval_task}")

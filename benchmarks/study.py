@@ -278,6 +278,47 @@ def success_curve(cells: list[dict], study: str, setting: str, eval_task: str, i
     return [(s, *mean_std(v), len(v)) for s, v in sorted(by_step.items())]
 
 
+#: Points of success within which two evaluated checkpoints count as equal for
+#: :func:`plateau_step` (about one binomial standard error at 50-100 episodes and 80-95 %).
+PLATEAU_POINTS = 5.0
+
+
+def plateau_step(curve: list[tuple], tolerance: float = PLATEAU_POINTS) -> int | None:
+    """The training step from which success has stopped rising: the first evaluated step ``s``
+    such that every mean from ``s`` to the last checkpoint is within ``tolerance`` points of the
+    last one, with at least two checkpoints in that tail. None when the curve is still moving
+    at its end (or has fewer than two checkpoints): then the run is not shown to be converged.
+    ``curve`` is :func:`success_curve`'s ``[(step, mean, ...)]``, sorted by step."""
+    if len(curve) < 2:
+        return None
+    last = curve[-1][1]
+    start = len(curve) - 1
+    while start > 0 and abs(curve[start - 1][1] - last) <= tolerance:
+        start -= 1
+    return curve[start][0] if start < len(curve) - 1 else None
+
+
+def format_curves(cells: list[dict], study: str, eval_task: str) -> str:
+    """Markdown: success against training steps (mean over seeds) per setting and IS, for the
+    settings evaluated at more than one checkpoint, and the :func:`plateau_step` of each."""
+    lines = []
+    for row in summarise(cells, study, eval_task):
+        curve = success_curve(cells, study, row["setting"], eval_task, row["inference_steps"])
+        if len(curve) < 2:
+            continue
+        plateau = plateau_step(curve)
+        points = ", ".join(f"{m:.0f} ({n}; {st})" for st, m, _, n in curve)
+        verdict = f"from {plateau}" if plateau is not None else "not reached"
+        lines.append(f"| {row['setting']} | {row['inference_steps']} | {points} | {verdict} |")
+    if not lines:
+        return ""
+    head = [
+        f"| setting | IS | success % (seeds; step) | plateau (+-{PLATEAU_POINTS:.0f} points) |",
+        "| --- | ---: | --- | ---: |",
+    ]
+    return "\n".join(head + lines)
+
+
 def plot_study(cells: list[dict], study: str, eval_task: str, path: Path, title: str) -> None:
     """PNG with two panels: success (mean +- std over seeds) per setting at the last checkpoint,
     one bar per IS; and success against training steps for every setting evaluated at more than

@@ -6,7 +6,17 @@ from pathlib import Path
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
-from study import ABLATIONS, COMMON, CPU_SIZE, ResultStore, cell_key, mean_std, summarise
+from study import (
+    ABLATIONS,
+    COMMON,
+    CPU_SIZE,
+    ResultStore,
+    cell_key,
+    format_curves,
+    mean_std,
+    plateau_step,
+    summarise,
+)
 
 
 def _cell(setting, seed, step, k, pc, study="ablation", task="Lift", spacing="checkpoint"):
@@ -131,3 +141,29 @@ def test_a_sampling_only_setting_evaluates_the_runs_it_names_without_training(tm
     store = ResultStore(results, "Lift")
     midpoint = [c for c in store.cells.values() if c["setting"] == "solver_midpoint"]
     assert len(midpoint) == 2 and all(c["trained_as"] == "default" and c["overrides"] == [] for c in midpoint)
+
+
+@pytest.mark.parametrize(
+    ("means", "plateau"),
+    [
+        ([83.0, 81.0, 86.0], 1000),  # flat within 5 points from the first checkpoint
+        ([20.0, 70.0, 74.0, 72.0], 2000),  # rose, then flat
+        ([20.0, 40.0, 60.0], None),  # control: still rising at the end
+        ([90.0, 50.0, 90.0], None),  # control: moved by 40 points at the end
+        ([60.0, 66.0], None),  # control: 6 points is past the tolerance
+        ([90.0], None),  # one checkpoint shows nothing
+    ],
+)
+def test_plateau_is_the_first_step_of_a_flat_tail(means, plateau):
+
+    curve = [(1000 * (i + 1), m, 0.0, 3) for i, m in enumerate(means)]
+    assert plateau_step(curve) == plateau
+
+
+def test_curves_table_lists_multi_checkpoint_settings_with_their_plateau():
+    cells = [_cell("default", seed, step, 2, m + seed) for seed in (0, 2)
+             for step, m in ((1000, 40.0), (2000, 80.0), (3000, 82.0))]  # fmt: skip
+    cells += [_cell("squash_off", 0, 3000, 2, 50.0)]  # one checkpoint: no curve
+    assert format_curves(cells, "ablation", "Lift").splitlines()[2:] == [
+        "| default | 2 | 41 (2; 1000), 81 (2; 2000), 83 (2; 3000) | from 2000 |"
+    ]
