@@ -1,7 +1,7 @@
 """The few-step study of issue #21 in one file: ``benchmarks/results/few_step.json``.
 
 Collects, from each task's study JSON (``benchmarks/results/<task>.json``, written by
-``run_results.py``), the cells evaluated on the training task at the last checkpoint of:
+``run_results.py``), the cells evaluated on the training task, at every evaluated checkpoint, of:
 
 - every few-step candidate (:data:`FEW_STEP`, ``--study ablation``) on the checkpoint's own
   time grid;
@@ -9,11 +9,10 @@ Collects, from each task's study JSON (``benchmarks/results/<task>.json``, writt
   :data:`EXPONENTIAL_ROW` (``--settings default --time-spacings exponential``);
 - the reference policies (:data:`REFERENCES`, ``--study comparison``), where they were run.
 
-It summarises them per row and IS (mean +- std over training seeds, :func:`study.summarise`),
-checks the issue's target per candidate (:func:`targets`: IS = 2 within
-:data:`TARGET_GAP_POINTS` of the candidate's own IS = 10, and at or above each reference at
-IS = 2), joins the chunk latency per candidate and IS (``bench_checkpoint_latency.py --json``
-reports, one per task), writes the JSON and prints the Markdown tables per task::
+It summarises them per row and IS at the last checkpoint (mean +- std over training seeds,
+:func:`study.summarise`), checks the issue's target per candidate (:func:`target_checks`),
+joins the chunk latency per candidate and IS (``bench_checkpoint_latency.py --json`` reports,
+one per task), writes the JSON and prints the Markdown tables per task::
 
     python benchmarks/few_step.py --tasks Lift,StackThree_D0 \\
         --latency benchmarks/results/few_step_latency_Lift.json
@@ -27,7 +26,7 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from study import ABLATIONS, format_summary, study_cells, summarise
+from study import ABLATIONS, COMPARISON, format_summary, study_cells, summarise
 
 #: The candidates of issue #21 (study settings) and the baseline they are compared with.
 FEW_STEP = (
@@ -42,57 +41,86 @@ FEW_STEP = (
 )
 #: The ``default`` runs sampled on the exponential time grid, as a row of the tables.
 EXPONENTIAL_ROW = "default, exponential grid"
-#: Policies of ``--study comparison`` that every candidate is held against at IS = 2.
-REFERENCES = ("euclidean_flow", "diffusion")
-#: The issue's target: IS = 2 at most this many points below the candidate's own IS = 10.
-TARGET_GAP_POINTS = 5.0
+#: Policies of ``--study comparison`` that every candidate is held against.
+REFERENCES = tuple(name for name in COMPARISON if name != "actionflow")
+#: The issue's target: at ``FEW_IS`` inference steps, at most ``TARGET_GAP_POINTS`` below the
+#: candidate's own success at ``FULL_IS``, and at or above every reference at ``FEW_IS``.
+FEW_IS, FULL_IS, TARGET_GAP_POINTS = 2, 10, 5.0
 RESULTS = Path(__file__).resolve().parent / "results"
 
 
 def collect(task: str, results: Path) -> dict:
     """``{"cells", "summary", "targets"}`` of the few-step candidates, the exponential-grid row
     and the references on ``task`` (its own evaluation task)."""
-    data = json.loads((results / f"{task}.json").read_text())
+    path = results / f"{task}.json"
+    data = json.loads(path.read_text())
     candidates = [c for c in study_cells(data["cells"], "ablation", task) if c["setting"] in FEW_STEP]
     on_grid = study_cells(data["cells"], "ablation", task, "exponential")
     exponential = [c for c in on_grid if c["setting"] == "default"]
     references = [c for c in study_cells(data["cells"], "comparison", task) if c["setting"] in REFERENCES]
+    if not candidates + exponential + references:
+        raise SystemExit(
+            f"{path} has no few-step cells of task {task!r}: none of the settings {list(FEW_STEP)} "
+            "evaluated on the task itself (settings with cameras are not collected)"
+        )
     summary = summarise(candidates, "ablation", task)
     grid_rows = summarise(exponential, "ablation", task, "exponential")
     summary += [dict(r, setting=EXPONENTIAL_ROW) for r in grid_rows]
     summary += summarise(references, "comparison", task)
-    return {"cells": candidates + exponential + references, "summary": summary, "targets": targets(summary)}
+    return {
+        "cells": candidates + exponential + references,
+        "summary": summary,
+        "targets": target_checks(summary),
+    }
 
 
-def targets(summary: list[dict]) -> list[dict]:
-    """Per candidate row with IS = 2 and IS = 10 at its last checkpoint: the gap between them
-    (points), whether it is within :data:`TARGET_GAP_POINTS`, and, per reference with an IS = 2
-    row, whether the candidate's IS = 2 mean is at or above the reference's."""
-    last = {(r["setting"], r["inference_steps"]): r["last"][0] for r in summary}
-    out = []
+def target_checks(summary: list[dict]) -> list[dict]:
+    """Per candidate row with ``FEW_IS`` and ``FULL_IS`` summaries: their last-checkpoint means,
+    ``gap = full - few`` (points) and ``within_gap`` (gap <= :data:`TARGET_GAP_POINTS`), and per
+    reference with a ``FEW_IS`` summary, its mean, step and ``at_or_above`` (the candidate's
+    ``FEW_IS`` mean >= the reference's). Only rows of the same last checkpoint step are compared:
+    where the steps differ the verdict is None (not comparable)."""
+    rows = {(r["setting"], r["inference_steps"]): r for r in summary}
+    refs = {ref: rows[ref, FEW_IS] for ref in REFERENCES if (ref, FEW_IS) in rows}
+    checks = []
     for setting in dict.fromkeys(r["setting"] for r in summary):
-        if setting in REFERENCES or (setting, 2) not in last or (setting, 10) not in last:
+        few, full = rows.get((setting, FEW_IS)), rows.get((setting, FULL_IS))
+        if setting in REFERENCES or few is None or full is None:
             continue
-        gap = last[setting, 10] - last[setting, 2]
-        out.append({
-            "setting": setting, "is2": last[setting, 2], "is10": last[setting, 10], "gap": gap,
-            "within_gap": gap <= TARGET_GAP_POINTS,
-            "at_or_above": {ref: last[setting, 2] >= last[ref, 2] for ref in REFERENCES if (ref, 2) in last},
+        step, gap = few["last_step"], full["last"][0] - few["last"][0]
+        checks.append({
+            "setting": setting, "step": step, "seeds": few["last_seeds"],
+            "few": few["last"][0], "full": full["last"][0], "gap": gap,
+            "within_gap": gap <= TARGET_GAP_POINTS if full["last_step"] == step else None,
+            "references": {
+                ref: {"success": r["last"][0], "step": r["last_step"],
+                      "at_or_above": few["last"][0] >= r["last"][0] if r["last_step"] == step else None}
+                for ref, r in refs.items()
+            },
         })  # fmt: skip
-    return out
+    return checks
 
 
-def format_targets(rows: list[dict], summary: list[dict]) -> str:
-    """Markdown: the target check of :func:`targets`, one row per candidate."""
-    ref_is2 = {r["setting"]: r["last"][0] for r in summary if r["inference_steps"] == 2}
-    refs = [ref for ref in REFERENCES if ref in ref_is2]
-    head = ["IS=2", "IS=10", "IS=10 - IS=2", f"within {TARGET_GAP_POINTS:.0f} points"]
-    head += [f">= {ref} at IS=2 ({ref_is2[ref]:.0f})" for ref in refs]
-    lines = ["| setting | " + " | ".join(head) + " |", "| --- |" + " ---: |" * len(head)]
-    for t in rows:
-        vals = [f"{t['is2']:.0f}", f"{t['is10']:.0f}", f"{t['gap']:.0f}", "yes" if t["within_gap"] else "no"]
-        vals += ["yes" if t["at_or_above"][ref] else "no" for ref in refs]
-        lines.append(f"| {t['setting']} | " + " | ".join(vals) + " |")
+def format_targets(checks: list[dict]) -> str:
+    """Markdown: :func:`target_checks`, one row per candidate, and which references were not run."""
+    refs = {ref: c["references"][ref] for c in checks for ref in c["references"]}
+
+    def verdict(v):
+        return "step differs" if v is None else "yes" if v else "no"
+
+    head = [f"IS={FEW_IS}", f"IS={FULL_IS}", "gap", f"within {TARGET_GAP_POINTS:g} points"]
+    head += [f">= {ref} at IS={FEW_IS} ({r['success']:.0f}; {r['step']})" for ref, r in refs.items()]
+    lines = ["| setting (seeds; step) | " + " | ".join(head) + " |", "| --- |" + " ---: |" * len(head)]
+    for c in checks:
+        vals = [f"{c['few']:.0f}", f"{c['full']:.0f}", f"{c['gap']:.1f}", verdict(c["within_gap"])]
+        vals += [verdict(c["references"][ref]["at_or_above"]) for ref in refs]
+        lines.append(f"| {c['setting']} ({c['seeds']}; {c['step']}) | " + " | ".join(vals) + " |")
+    missing = [ref for ref in REFERENCES if ref not in refs]
+    if missing:
+        lines += [
+            "",
+            f"Not run at IS={FEW_IS} on this protocol (no verdict against them): {', '.join(missing)}.",
+        ]
     return "\n".join(lines)
 
 
@@ -112,7 +140,7 @@ def format_task(task: str, entry: dict, latency: dict | None) -> str:
     lines = [f"#### {task}", "", format_summary(rows, best=False)]
     if entry["targets"]:
         checks = sorted(entry["targets"], key=lambda t: order.index(t["setting"]))
-        lines += ["", format_targets(checks, rows)]
+        lines += ["", format_targets(checks)]
     if latency:
         lines += [
             "",
@@ -139,7 +167,7 @@ def main(argv: list[str] | None = None) -> dict:
         latency[report["task"]] = report
     out = {
         "settings": {s: ABLATIONS[s].why for s in FEW_STEP},
-        "target_gap_points": TARGET_GAP_POINTS,
+        "target": {"few_is": FEW_IS, "full_is": FULL_IS, "gap_points": TARGET_GAP_POINTS},
         "tasks": {},
         "latency": latency,
     }

@@ -28,7 +28,7 @@ every IS of ``--inference-steps`` and every grid of ``--time-spacings``. Each ev
 cell of ``--results`` (default ``benchmarks/results/<task>.json``), written as it finishes; a
 rerun skips the cells and the training runs that exist. Prints mean +- std over seeds, and for
 runs evaluated at several checkpoints the success against steps with the step from which it
-stopped rising (:func:`study.plateau_step`: "converged" as a measurement).
+stays in a narrow band (:func:`study.plateau_step`).
 ``--report`` prints the tables (and writes ``--plot``) from the stored cells without training or
 evaluating anything. ``--cameras wrist,agentview --image-size 80`` records a second dataset with
 those cameras and trains and evaluates every setting on it (setting names get

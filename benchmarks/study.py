@@ -110,13 +110,13 @@ ABLATIONS: dict[str, Setting] = {
     "time_beta_noise": Setting(
         "actionflow",
         ("--policy.train_time_distribution=beta", "--policy.train_time_beta=[1.0,1.5]"),
-        "training times Beta(1, 1.5): more weight near t = 0 (noise), where few steps are longest",
+        "training times Beta(1, 1.5): density 1.5 (1 - t)^0.5, more weight near t = 0 (noise)",
     ),
     "noise_sigma_0.05": Setting(
-        "actionflow", ("--policy.noise_sigma=0.05",), "initial positions EEF + N(0, 0.05^2) instead of 0.1^2"
+        "actionflow", ("--policy.noise_sigma=0.05",), "initial positions EEF + N(0, 0.05^2 I)"
     ),
     "noise_sigma_0.2": Setting(
-        "actionflow", ("--policy.noise_sigma=0.2",), "initial positions EEF + N(0, 0.2^2) instead of 0.1^2"
+        "actionflow", ("--policy.noise_sigma=0.2",), "initial positions EEF + N(0, 0.2^2 I)"
     ),
 }
 
@@ -263,9 +263,18 @@ def format_summary(rows: list[dict], best: bool = True) -> str:
     return "\n".join(lines)
 
 
-def success_curve(cells: list[dict], study: str, setting: str, eval_task: str, inference_steps: int):
-    """``[(step, mean, std, n_seeds)]``: success against training steps (the convergence axis)."""
-    by_step: dict[int, list[float]] = {}
+def success_curve(
+    cells: list[dict],
+    study: str,
+    setting: str,
+    eval_task: str,
+    inference_steps: int,
+    same_seeds: bool = False,
+):
+    """``[(step, mean, std, n_seeds)]``: success against training steps (the convergence axis).
+    ``same_seeds``: only the seeds evaluated at every step, so that the points differ by the
+    step alone (empty when no seed has them all)."""
+    by_step: dict[int, dict[int, float]] = {}
     for c in cells:
         if (c["study"], c["setting"], c["eval_task"], c["inference_steps"], c["time_spacing"]) == (
             study,
@@ -274,47 +283,57 @@ def success_curve(cells: list[dict], study: str, setting: str, eval_task: str, i
             inference_steps,
             "checkpoint",
         ):
-            by_step.setdefault(c["step"], []).append(c["pc_success"])
-    return [(s, *mean_std(v), len(v)) for s, v in sorted(by_step.items())]
+            by_step.setdefault(c["step"], {})[c["seed"]] = c["pc_success"]
+    if same_seeds and by_step:
+        common = set.intersection(*(set(v) for v in by_step.values()))
+        by_step = {s: {seed: v[seed] for seed in common} for s, v in by_step.items()} if common else {}
+    return [(s, *mean_std(list(v.values())), len(v)) for s, v in sorted(by_step.items())]
 
 
-#: Points of success within which two evaluated checkpoints count as equal for
-#: :func:`plateau_step` (about one binomial standard error at 50-100 episodes and 80-95 %).
+#: Width (points of success) of the band that :func:`plateau_step` calls flat. A one-run cell
+#: of 50 episodes at 80-95 % has a binomial standard error of 3-6 points, a 3-seed mean about
+#: 1.7x less: 5 points is 1-3 standard errors, so a slow rise under 5 points goes unseen.
 PLATEAU_POINTS = 5.0
 
 
 def plateau_step(curve: list[tuple], tolerance: float = PLATEAU_POINTS) -> int | None:
-    """The training step from which success has stopped rising: the first evaluated step ``s``
-    such that every mean from ``s`` to the last checkpoint is within ``tolerance`` points of the
-    last one, with at least two checkpoints in that tail. None when the curve is still moving
-    at its end (or has fewer than two checkpoints): then the run is not shown to be converged.
-    ``curve`` is :func:`success_curve`'s ``[(step, mean, ...)]``, sorted by step."""
-    if len(curve) < 2:
-        return None
-    last = curve[-1][1]
+    """The training step from which success stays in a band ``tolerance`` points wide up to the
+    last checkpoint: the first evaluated step ``s`` such that the means from ``s`` to the end
+    differ by at most ``tolerance`` (max - min), with at least two checkpoints in that tail.
+    None when the last two checkpoints already differ by more (or there are fewer than two):
+    then the run is not shown to have stopped changing. ``curve`` is :func:`success_curve`'s
+    ``[(step, mean, ...)]``, sorted by step, from the same seeds at every step."""
     start = len(curve) - 1
-    while start > 0 and abs(curve[start - 1][1] - last) <= tolerance:
+    while start > 0:
+        tail = [point[1] for point in curve[start - 1 :]]
+        if max(tail) - min(tail) > tolerance:
+            break
         start -= 1
     return curve[start][0] if start < len(curve) - 1 else None
 
 
 def format_curves(cells: list[dict], study: str, eval_task: str) -> str:
-    """Markdown: success against training steps (mean over seeds) per setting and IS, for the
-    settings evaluated at more than one checkpoint, and the :func:`plateau_step` of each."""
+    """Markdown: success against training steps (mean over the seeds evaluated at every step)
+    per setting and IS, for the settings evaluated at more than one checkpoint, and the
+    :func:`plateau_step` of each."""
     lines = []
     for row in summarise(cells, study, eval_task):
-        curve = success_curve(cells, study, row["setting"], eval_task, row["inference_steps"])
+        curve = success_curve(
+            cells, study, row["setting"], eval_task, row["inference_steps"], same_seeds=True
+        )
         if len(curve) < 2:
             continue
         plateau = plateau_step(curve)
-        points = ", ".join(f"{m:.0f} ({n}; {st})" for st, m, _, n in curve)
+        points = ", ".join(f"{m:.0f} ({st})" for st, m, _, _ in curve)
         verdict = f"from {plateau}" if plateau is not None else "not reached"
-        lines.append(f"| {row['setting']} | {row['inference_steps']} | {points} | {verdict} |")
+        lines.append(
+            f"| {row['setting']} | {row['inference_steps']} | {curve[0][3]} | {points} | {verdict} |"
+        )
     if not lines:
         return ""
     head = [
-        f"| setting | IS | success % (seeds; step) | plateau (+-{PLATEAU_POINTS:.0f} points) |",
-        "| --- | ---: | --- | ---: |",
+        f"| setting | IS | seeds | success % (step) | flat within {PLATEAU_POINTS:g} points |",
+        "| --- | ---: | ---: | --- | ---: |",
     ]
     return "\n".join(head + lines)
 

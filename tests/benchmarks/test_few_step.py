@@ -21,6 +21,7 @@ def _cell(setting, seed, k, success, eval_task="Lift", spacing="checkpoint", ste
 
 def test_the_file_keeps_the_candidates_cells_and_the_table_their_seed_statistics(tmp_path):
     cells = [_cell("noise_concentrated", s, 2, v) for s, v in ((0, 90.0), (1, 100.0))]
+    cells += [_cell("noise_concentrated", s, 10, 100.0) for s in (0, 1)]
     cells += [_cell("noise_concentrated", 0, 2, 10.0, step=1000)]  # an earlier checkpoint
     grid = [_cell("default", 0, 2, 70.0, spacing="exponential")]  # the time-grid row
     reference = [_cell("euclidean_flow", 0, 2, 80.0, study="comparison")]
@@ -39,40 +40,63 @@ def test_the_file_keeps_the_candidates_cells_and_the_table_their_seed_statistics
     out = few_step.main(["--tasks", "Lift", "--results", str(tmp_path), "--latency", str(latency)])
     assert json.loads((tmp_path / "few_step.json").read_text()) == json.loads(json.dumps(out))
     assert out["tasks"]["Lift"]["cells"] == cells + grid + reference
-    rows = {r["setting"]: r for r in out["tasks"]["Lift"]["summary"]}
-    assert set(rows) == {"noise_concentrated", few_step.EXPONENTIAL_ROW, "euclidean_flow"}
-    row = rows["noise_concentrated"]
+    rows = {(r["setting"], r["inference_steps"]): r for r in out["tasks"]["Lift"]["summary"]}
+    assert {s for s, _ in rows} == {"noise_concentrated", few_step.EXPONENTIAL_ROW, "euclidean_flow"}
+    row = rows["noise_concentrated", 2]
     assert (row["last_step"], row["last"], row["last_seeds"]) == (3000, (95.0, 5.0), 2)
-    assert rows[few_step.EXPONENTIAL_ROW]["last"] == (70.0, 0.0)
+    assert rows[few_step.EXPONENTIAL_ROW, 2]["last"] == (70.0, 0.0)
     text = few_step.format_task("Lift", out["tasks"]["Lift"], out["latency"]["Lift"])
-    assert "| noise_concentrated | 95 +- 5 (2; 3000) |" in text
+    assert "| noise_concentrated | 95 +- 5 (2; 3000) | 100 +- 0 (2; 3000) |" in text
     assert f"| {few_step.EXPONENTIAL_ROW} | 70 +- 0 (1; 3000) |" in text
     assert "| euclidean_flow | 80 +- 0 (1; 3000) |" in text
-    assert "| noise_concentrated | 7.2 |" in text
+    assert "| noise_concentrated | 7.2 | - |" in text
+    (check,) = out["tasks"]["Lift"]["targets"]  # the only row with IS = 2 and 10
+    assert (check["setting"], check["gap"], check["within_gap"]) == ("noise_concentrated", 5.0, True)
+    assert check["references"] == {"euclidean_flow": {"success": 80.0, "step": 3000, "at_or_above": True}}
+    assert "| noise_concentrated (2; 3000) | 95 | 100 | 5.0 | yes | yes |" in text
+    assert "no verdict against them): diffusion." in text
 
 
-def _summary_row(setting, k, mean):
-    return {"setting": setting, "inference_steps": k, "last": (mean, 0.0)}
+def test_a_task_with_no_few_step_cells_is_named(tmp_path):
+    stored = {"task": "Lift", "cells": [_cell("squash_off", 0, 2, 50.0)]}
+    (tmp_path / "Lift.json").write_text(json.dumps(stored))
+    with pytest.raises(SystemExit, match="no few-step cells of task 'Lift'"):
+        few_step.main(["--tasks", "Lift", "--results", str(tmp_path)])
+
+
+def _summary_row(setting, k, mean, step=3000):
+    return {"setting": setting, "inference_steps": k, "last": (mean, 0.0), "last_step": step, "last_seeds": 3}
 
 
 @pytest.mark.parametrize(
-    ("is2", "is10", "reference", "within", "above"),
+    ("few", "full", "reference", "within", "above"),
     [
         (95.0, 100.0, 95.0, True, True),  # the target's edges: 5 points, equal to the reference
         (94.0, 100.0, 95.0, False, False),  # controls: one point past each edge
         (90.0, 90.0, 99.0, True, False),
     ],
 )
-def test_target_is_a_gap_of_5_points_or_less_and_the_reference_or_more(is2, is10, reference, within, above):
-    summary = [_summary_row("noise_concentrated", 2, is2), _summary_row("noise_concentrated", 10, is10),
+def test_target_is_a_gap_of_5_points_or_less_and_the_reference_or_more(few, full, reference, within, above):
+    summary = [_summary_row("noise_concentrated", 2, few), _summary_row("noise_concentrated", 10, full),
                _summary_row("noise_concentrated", 1, 0.0), _summary_row("diffusion", 2, reference),
-               _summary_row("shortcut", 2, 99.0)]  # fmt: skip
-    (check,) = few_step.targets(summary)  # shortcut has no IS = 10 row: no check; diffusion is a reference
-    assert (check["setting"], check["gap"], check["within_gap"]) == ("noise_concentrated", is10 - is2, within)
-    assert check["at_or_above"] == {"diffusion": above}
-    table = few_step.format_targets([check], summary)
-    assert f">= diffusion at IS=2 ({reference:.0f})" in table
-    assert table.splitlines()[-1].endswith(f"| {'yes' if within else 'no'} | {'yes' if above else 'no'} |")
+               _summary_row("diffusion", 10, 100.0), _summary_row("shortcut", 2, 99.0)]  # fmt: skip
+    (check,) = few_step.target_checks(summary)  # shortcut has no IS = 10 row; diffusion is a reference
+    assert (check["setting"], check["gap"], check["within_gap"]) == ("noise_concentrated", full - few, within)
+    assert check["references"]["diffusion"]["at_or_above"] is above
+    table = few_step.format_targets([check])
+    assert f">= diffusion at IS=2 ({reference:.0f}; 3000)" in table
+    assert f"| {'yes' if within else 'no'} | {'yes' if above else 'no'} |" in table
+
+
+def test_rows_of_different_checkpoint_steps_get_no_verdict():
+    summary = [_summary_row("default", 2, 90.0), _summary_row("default", 10, 99.0, step=1000),
+               _summary_row("euclidean_flow", 2, 50.0, step=20000)]  # fmt: skip
+    (check,) = few_step.target_checks(summary)
+    assert check["within_gap"] is None and check["references"]["euclidean_flow"]["at_or_above"] is None
+    assert "| 9.0 | step differs | step differs |" in few_step.format_targets([check])
+    same = [dict(r, last_step=3000) for r in summary]  # control: the same rows at one step
+    (check,) = few_step.target_checks(same)
+    assert (check["within_gap"], check["references"]["euclidean_flow"]["at_or_above"]) == (False, True)
 
 
 def test_a_task_without_results_is_named(tmp_path):

@@ -148,6 +148,7 @@ def test_a_sampling_only_setting_evaluates_the_runs_it_names_without_training(tm
     [
         ([83.0, 81.0, 86.0], 1000),  # flat within 5 points from the first checkpoint
         ([20.0, 70.0, 74.0, 72.0], 2000),  # rose, then flat
+        ([70.0, 72.0, 74.0, 76.0, 78.0, 80.0], 4000),  # a slow rise: flat only over its last 4 points
         ([20.0, 40.0, 60.0], None),  # control: still rising at the end
         ([90.0, 50.0, 90.0], None),  # control: moved by 40 points at the end
         ([60.0, 66.0], None),  # control: 6 points is past the tolerance
@@ -155,7 +156,6 @@ def test_a_sampling_only_setting_evaluates_the_runs_it_names_without_training(tm
     ],
 )
 def test_plateau_is_the_first_step_of_a_flat_tail(means, plateau):
-
     curve = [(1000 * (i + 1), m, 0.0, 3) for i, m in enumerate(means)]
     assert plateau_step(curve) == plateau
 
@@ -163,7 +163,10 @@ def test_plateau_is_the_first_step_of_a_flat_tail(means, plateau):
 def test_curves_table_lists_multi_checkpoint_settings_with_their_plateau():
     cells = [_cell("default", seed, step, 2, m + seed) for seed in (0, 2)
              for step, m in ((1000, 40.0), (2000, 80.0), (3000, 82.0))]  # fmt: skip
-    cells += [_cell("squash_off", 0, 3000, 2, 50.0)]  # one checkpoint: no curve
+    cells += [_cell("default", 1, 3000, 2, 0.0)]  # a seed with the last step only: not in the curve
+    cells += [_cell("squash_off", 0, step, 2, m) for step, m in ((1000, 20.0), (2000, 60.0))]  # rising
+    cells += [_cell("velocity_eef", 0, 3000, 2, 50.0)]  # one checkpoint: no curve
     assert format_curves(cells, "ablation", "Lift").splitlines()[2:] == [
-        "| default | 2 | 41 (2; 1000), 81 (2; 2000), 83 (2; 3000) | from 2000 |"
+        "| default | 2 | 2 | 41 (1000), 81 (2000), 83 (3000) | from 2000 |",
+        "| squash_off | 2 | 1 | 20 (1000), 60 (2000) | not reached |",
     ]
