@@ -48,6 +48,7 @@ import time
 from pathlib import Path
 
 from study import (
+    BASELINES,
     COMMON,
     CPU_SIZE,
     PAPER_SIZE,
@@ -180,7 +181,7 @@ def run_study(args, env: dict, data: Path, repo_id: str, collect) -> int:
         name = base + camera_suffix
         for seed in seeds:
             run = out / args.study / _folder(setting.trained_as or base, camera_suffix) / f"seed{seed}"
-            overrides = list(trained.overrides)
+            overrides = [*BASELINES[args.study].get(setting.policy, ()), *trained.overrides]
             if args.cameras:
                 overrides += IMAGE_OVERRIDES.get(setting.policy, [])
             saved = sorted({*range(args.eval_every, args.steps + 1, args.eval_every), args.steps})
@@ -224,6 +225,7 @@ def run_study(args, env: dict, data: Path, repo_id: str, collect) -> int:
                         {
                             "study": args.study, "setting": name, "policy": setting.policy,
                             "overrides": list(trained.overrides), "sampling": list(setting.sampling),
+                            "baseline": list(BASELINES[args.study].get(setting.policy, ())),
                             "trained_as": setting.trained_as or base, "seed": seed, "step": step,
                             "eval_task": eval_task, "inference_steps": row["inference_steps"],
                             "time_spacing": spacing, "sampler": row["sampler"],

@@ -57,7 +57,7 @@ class Setting:
 #: Ablations of ActionFlow (issue #17, part 1). The time grid and K need no retraining: they
 #: are evaluation axes of the ``default`` runs (``--time-spacings``, ``--inference-steps``).
 ABLATIONS: dict[str, Setting] = {
-    "default": Setting("actionflow", (), "the package defaults at the CPU size"),
+    "default": Setting("actionflow", (), "the baseline (BASELINES) at the CPU size"),
     "squash_off": Setting(
         "actionflow", ("--policy.squash_translations=false",), "no tanh, translation scale 10"
     ),
@@ -128,6 +128,15 @@ COMPARISON: dict[str, Setting] = {
 }
 
 STUDIES = {"ablation": ABLATIONS, "comparison": COMPARISON}
+
+#: Flags every run of a study gets per policy, before its setting's overrides. The ablations
+#: compare settings with one fixed baseline, the configuration of every stored ``ablation`` cell,
+#: whatever the package defaults become: ActionFlow with uniform initial rotations. The
+#: comparison runs each policy with its package defaults.
+BASELINES: dict[str, dict[str, tuple[str, ...]]] = {
+    "ablation": {"actionflow": ("--policy.noise_rotation=uniform",)},
+    "comparison": {},
+}
 
 
 @dataclass(frozen=True)

@@ -8,6 +8,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
 from study import (
     ABLATIONS,
+    BASELINES,
     COMMON,
     CPU_SIZE,
     ResultStore,
@@ -74,14 +75,14 @@ def test_mean_std_is_the_population_spread():
 
 def test_ablation_settings_parse_as_actionflow_configs():
     """Every override names a real ActionFlow config field with a valid value, parsed as
-    ``lerobot-train`` parses it (draccus) after the CPU size preset, and a setting's overrides
-    change the config that the preset alone gives (``default`` has none)."""
+    ``lerobot-train`` parses it (draccus) after the CPU size preset and the study's baseline,
+    and a setting's overrides change the config that those alone give (``default`` has none)."""
     import draccus
 
     from lerobot_actionflow.policies.actionflow.configuration_actionflow import ActionflowConfig
 
     def parse(flags):
-        flags = (*COMMON, *CPU_SIZE["actionflow"], *flags)
+        flags = (*COMMON, *CPU_SIZE["actionflow"], *BASELINES["ablation"]["actionflow"], *flags)
         args = ["--device=cpu", *(f.replace("--policy.", "--", 1) for f in flags)]
         return draccus.parse(ActionflowConfig, args=args)  # raises on an unknown field or a refused value
 
@@ -128,10 +129,11 @@ def test_a_sampling_only_setting_evaluates_the_runs_it_names_without_training(tm
     assert run_results.main([*common, "--settings", "default,solver_midpoint,squash_off"]) == 0
 
     runs = [(run.relative_to(tmp_path).as_posix(), overrides) for run, overrides in trained]
-    squash_off = ("--policy.squash_translations=false",)
+    uniform = "--policy.noise_rotation=uniform"  # the ablations' baseline, whatever the package default
+    squash_off = (uniform, "--policy.squash_translations=false")
     assert runs == [
-        ("ablation/default/seed0", ()),
-        ("ablation/default/seed0", ()),
+        ("ablation/default/seed0", (uniform,)),
+        ("ablation/default/seed0", (uniform,)),
         ("ablation/squash_off/seed0", squash_off),
     ]
     (default_eval, midpoint_eval, _) = swept
