@@ -102,6 +102,27 @@ def test_sampled_actions_are_equivariant(frame, velocity_frame):
     assert _equivariance_error(pose, pose_t, r_d, p_d) <= 1e-4
 
 
+@pytest.mark.parametrize("rotation", ["uniform", "concentrated"])
+def test_chunks_from_the_policys_own_noise_are_equivariant(rotation):
+    """Without given noise the policy draws it itself (``noise_rotation``, in the EEF frame): the
+    same random state gives transformed chunks for a transformed scene, with either rotation
+    distribution; the other distribution from the same state gives other chunks (control: the
+    option reaches the draw)."""
+    policy = _policy(torch.float32, noise_rotation=rotation)
+    other = _policy(
+        torch.float32, noise_rotation={"uniform": "concentrated", "concentrated": "uniform"}[rotation]
+    )
+    gen = torch.Generator().manual_seed(8)
+    batch = random_batch(policy.config, 4, gen)
+    r_d, p_d = _random_transform(gen, torch.float32)
+    chunks = []
+    for p, b in ((policy, batch), (policy, transform_batch(batch, r_d, p_d)), (other, batch)):
+        torch.manual_seed(5)
+        chunks.append(action_to_pose(p.predict_action_chunk(b)))
+    assert _equivariance_error(chunks[0], chunks[1], r_d, p_d) <= 1e-4
+    assert (chunks[0][0] - chunks[2][0]).abs().max() > 1e-2
+
+
 def test_eef_velocity_frame_reads_the_head_in_the_eef_frame():
     """With ``translation_velocity_frame='eef'`` the same weights give ``v_p = r^T R_e u``, where
     ``u`` is what the ``'pose'`` network returns; the rotation and gripper channels are unchanged."""
