@@ -37,6 +37,7 @@ FEW_STEP = (
     "noise_sigma_0.05",
     "noise_sigma_0.2",
     "shortcut",
+    "shortcut_concentrated",
     "solver_midpoint",
 )
 #: The ``default`` runs sampled on the exponential time grid, as a row of the tables.

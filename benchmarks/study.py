@@ -107,6 +107,11 @@ ABLATIONS: dict[str, Setting] = {
         ("--policy.few_step_objective=shortcut",),
         "shortcut self-consistency on 1/4 of each batch, step size 1/K at sampling (uniform grid only)",
     ),
+    "shortcut_concentrated": Setting(
+        "actionflow",
+        ("--policy.few_step_objective=shortcut", "--policy.noise_rotation=concentrated"),
+        "the shortcut objective with concentrated initial rotations: for one-step sampling",
+    ),
     "time_beta_noise": Setting(
         "actionflow",
         ("--policy.train_time_distribution=beta", "--policy.train_time_beta=[1.0,1.5]"),
