@@ -84,8 +84,10 @@ class ActionflowConfig(PreTrainedConfig):
             the latest observation, in which the regression target is constant along the path
             (:mod:`lerobot_actionflow.nn.actionflow_network`). Both are exactly equivariant.
         noise_sigma: std of the initial translation noise around the EEF (metres).
-        noise_rotation: ``"uniform"`` or ``"concentrated"`` (around the EEF orientation,
-            ``Exp(noise_kappa * eps)``).
+        noise_rotation: ``"concentrated"`` [default] (around the EEF orientation,
+            ``Exp(noise_kappa * eps)``, ``eps ~ N(0, I)``) or ``"uniform"`` (Haar on SO(3), the
+            paper's). Concentrated initial rotations make the marginal rotation flow less
+            curved, so few Euler steps follow it: benchmarks/RESULTS.md, "Few-step".
         num_inference_steps [4]: integration steps K; may be changed at inference time.
         solver: ``"euler"`` [Eq. 8] or ``"midpoint"`` (second-order Runge-Kutta-Munthe-Kaas on
             SE(3), :func:`lerobot_actionflow.flow.se3.midpoint_step`). Network calls per chunk:
@@ -183,7 +185,7 @@ class ActionflowConfig(PreTrainedConfig):
     translation_velocity_frame: str = "pose"
 
     noise_sigma: float = 0.1
-    noise_rotation: str = "uniform"
+    noise_rotation: str = "concentrated"
     noise_kappa: float = 0.5
     num_inference_steps: int = 4
     solver: str = "euler"
