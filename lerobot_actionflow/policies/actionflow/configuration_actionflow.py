@@ -86,8 +86,8 @@ class ActionflowConfig(PreTrainedConfig):
         noise_sigma: std of the initial translation noise around the EEF (metres).
         noise_rotation: ``"concentrated"`` [default] (around the EEF orientation,
             ``Exp(noise_kappa * eps)``, ``eps ~ N(0, I)``) or ``"uniform"`` (Haar on SO(3), the
-            paper's). Concentrated initial rotations make the marginal rotation flow less
-            curved, so few Euler steps follow it: benchmarks/RESULTS.md, "Few-step".
+            paper's). With concentrated initial rotations 2 Euler steps score as 10 do on Lift
+            and StackThree_D0 (benchmarks/RESULTS.md, "Few-step sampling").
         num_inference_steps [4]: integration steps K; may be changed at inference time.
         solver: ``"euler"`` [Eq. 8] or ``"midpoint"`` (second-order Runge-Kutta-Munthe-Kaas on
             SE(3), :func:`lerobot_actionflow.flow.se3.midpoint_step`). Network calls per chunk:
