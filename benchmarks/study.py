@@ -134,6 +134,12 @@ COMPARISON: dict[str, Setting] = {
 
 STUDIES = {"ablation": ABLATIONS, "comparison": COMPARISON}
 
+#: The ablation setting that trains the comparison's ``actionflow`` configuration: the package
+#: default is the ablation baseline with concentrated initial rotations (the tests check that
+#: the two parse to one config). Reports read its runs where a task has no comparison runs of
+#: ActionFlow, instead of training the same thing twice.
+COMPARISON_ACTIONFLOW_IN_ABLATION = "noise_concentrated"
+
 #: Flags every run of a study gets per policy, before its setting's overrides. The ablations
 #: compare settings with one fixed baseline, the configuration of every stored ``ablation`` cell,
 #: whatever the package defaults become: ActionFlow with uniform initial rotations. The

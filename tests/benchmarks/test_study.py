@@ -10,6 +10,8 @@ from study import (
     ABLATIONS,
     BASELINES,
     COMMON,
+    COMPARISON,
+    COMPARISON_ACTIONFLOW_IN_ABLATION,
     CPU_SIZE,
     ResultStore,
     cell_key,
@@ -172,3 +174,20 @@ def test_curves_table_lists_multi_checkpoint_settings_with_their_plateau():
         "| default | 2 | 2 | 41 (1000), 81 (2000), 83 (3000) | from 2000 |",
         "| squash_off | 2 | 1 | 20 (1000), 60 (2000) | not reached |",
     ]
+
+
+def test_the_comparisons_actionflow_is_the_ablation_setting_reports_read_in_its_place():
+    """``COMPARISON_ACTIONFLOW_IN_ABLATION`` trains the comparison's ActionFlow configuration:
+    both parse to one config (each study's baseline and overrides on the shared protocol), and
+    the ablation's own baseline does not (control)."""
+    import draccus
+
+    from lerobot_actionflow.policies.actionflow.configuration_actionflow import ActionflowConfig
+
+    def parse(study, overrides):
+        flags = (*COMMON, *CPU_SIZE["actionflow"], *BASELINES[study].get("actionflow", ()), *overrides)
+        return draccus.parse(ActionflowConfig, args=[f.replace("--policy.", "--", 1) for f in flags])
+
+    comparison = parse("comparison", COMPARISON["actionflow"].overrides)
+    assert parse("ablation", ABLATIONS[COMPARISON_ACTIONFLOW_IN_ABLATION].overrides) == comparison
+    assert parse("ablation", ABLATIONS["default"].overrides) != comparison

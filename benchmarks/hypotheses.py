@@ -1,0 +1,231 @@
+"""The hypotheses of issue #17, checked against the stored study cells.
+
+Reads each task's ``benchmarks/results/<task>.json`` (written by ``run_results.py --study``) and
+prints one Markdown table per hypothesis, with a verdict per task (``yes``, ``no``, or why there
+is none) and the figures behind it::
+
+    python benchmarks/hypotheses.py --tasks Lift,Square,StackThree_D0,Threading_D0,Coffee_D0
+
+- **H1, H2**: ActionFlow >= ``diffusion`` (H1) and >= ``euclidean_flow`` (H2) at IS =
+  :data:`FEW_IS`, on the task itself: mean success over training seeds at each policy's last
+  checkpoint. No verdict where the two differ in their training protocol (:data:`PROTOCOL`:
+  demonstrations, batch, learning rate, size preset, cameras, episode cap); their training steps
+  and wall-clock may differ (an equal budget is either), and both are printed.
+- **H3**: ActionFlow keeps >= :data:`KEPT_FRACTION` of its D0 success on the D1 and D2
+  variants: the same checkpoints (last) evaluated on ``<name>_D1`` and ``<name>_D2``, per IS,
+  over the seeds evaluated on both.
+- **H4**: ActionFlow reaches >= :data:`TARGET_SUCCESS` % within :data:`BUDGET_S` of training on
+  :data:`H4_TASKS`: among the checkpoints whose training time (the run's ``train_wall_s`` times
+  ``step / train_steps``: one CPU core per run here) is within the budget, the best mean over
+  seeds at any evaluated IS.
+
+ActionFlow's cells are those of ``--study comparison --settings actionflow``; a task without
+them uses the ablation's runs of the same configuration
+(:data:`study.COMPARISON_ACTIONFLOW_IN_ABLATION`), and the tables say which.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from study import COMPARISON_ACTIONFLOW_IN_ABLATION, mean_std, study_cells
+
+TASKS = ("Lift", "Square", "StackThree_D0", "Threading_D0", "Coffee_D0")
+H4_TASKS = ("StackThree_D0", "Threading_D0", "Square")
+FEW_IS = 2
+KEPT_FRACTION = 0.9
+TARGET_SUCCESS, BUDGET_S = 80.0, 3600.0
+#: Cell fields that make two runs' training comparable (training steps excepted).
+PROTOCOL = ("demos", "batch_size", "lr", "preset", "cameras", "image_size", "episode_length")
+RESULTS = Path(__file__).resolve().parent / "results"
+
+
+def actionflow_cells(cells: list[dict], eval_task: str) -> tuple[list[dict], str]:
+    """ActionFlow's cells on ``eval_task`` (checkpoint grid) and where they come from."""
+    own = [c for c in study_cells(cells, "comparison", eval_task) if c["setting"] == "actionflow"]
+    if own:
+        return own, "comparison/actionflow"
+    source = COMPARISON_ACTIONFLOW_IN_ABLATION
+    chosen = [c for c in study_cells(cells, "ablation", eval_task) if c["setting"] == source]
+    return chosen, f"ablation/{source}"
+
+
+def last_checkpoint(cells: list[dict], inference_steps: int) -> dict | None:
+    """Mean +- std over seeds at the last evaluated step at ``inference_steps``, with that step,
+    the seeds, the mean training wall-clock (s) and the protocol; None without such cells."""
+    chosen = [c for c in cells if c["inference_steps"] == inference_steps]
+    if not chosen:
+        return None
+    step = max(c["step"] for c in chosen)
+    at = [c for c in chosen if c["step"] == step]
+    walls = [c["train_wall_s"] * step / c["train_steps"] for c in at if c.get("train_wall_s")]
+    return {
+        "step": step,
+        "success": mean_std([c["pc_success"] for c in at]),
+        "seeds": sorted(c["seed"] for c in at),
+        "train_wall_s": statistics.fmean(walls) if walls else None,
+        "protocol": {k: at[0].get(k) for k in PROTOCOL},
+    }
+
+
+def check_reference(cells: list[dict], task: str, reference: str) -> dict:
+    """H1 / H2 on one task: ActionFlow's IS = ``FEW_IS`` mean against ``reference``'s."""
+    af_cells, source = actionflow_cells(cells, task)
+    ref_cells = [c for c in study_cells(cells, "comparison", task) if c["setting"] == reference]
+    af, ref = last_checkpoint(af_cells, FEW_IS), last_checkpoint(ref_cells, FEW_IS)
+    out = {"task": task, "source": source, "actionflow": af, "reference": ref, "holds": None}
+    if af is None or ref is None:
+        missing = [name for name, row in (("actionflow", af), (reference, ref)) if row is None]
+        out["why"] = f"not run at IS={FEW_IS}: {', '.join(missing)}"
+    elif af["protocol"] != ref["protocol"]:
+        differ = [k for k in PROTOCOL if af["protocol"][k] != ref["protocol"][k]]
+        out["why"] = f"training protocols differ in {', '.join(differ)}"
+    else:
+        out["holds"] = af["success"][0] >= ref["success"][0]
+    return out
+
+
+def check_variants(cells: list[dict], task: str) -> list[dict]:
+    """H3 on a ``<name>_D0`` task: per variant and IS, ActionFlow's D1/D2 success as a fraction
+    of its D0 success, last checkpoint, over the seeds evaluated on both."""
+    if not task.endswith("_D0"):
+        return []
+    rows = []
+    d0_cells, source = actionflow_cells(cells, task)
+    for variant in (task[:-1] + "1", task[:-1] + "2"):
+        var_cells, _ = actionflow_cells(cells, variant)
+        for k in sorted({c["inference_steps"] for c in var_cells}):
+            var = last_checkpoint(var_cells, k)
+            at = (k, var["step"])
+            d0 = {c["seed"]: c["pc_success"] for c in d0_cells if (c["inference_steps"], c["step"]) == at}
+            on = {c["seed"]: c["pc_success"] for c in var_cells if (c["inference_steps"], c["step"]) == at}
+            seeds = sorted(set(d0) & set(on))
+            row = {"task": task, "variant": variant, "inference_steps": k, "step": var["step"],
+                   "source": source, "seeds": seeds, "kept": None, "holds": None}  # fmt: skip
+            if seeds:
+                base, moved = statistics.fmean(d0[s] for s in seeds), statistics.fmean(on[s] for s in seeds)
+                row.update(d0=base, success=moved)
+                if base > 0:
+                    row["kept"] = moved / base
+                    row["holds"] = row["kept"] >= KEPT_FRACTION
+            rows.append(row)
+    return rows
+
+
+def check_budget(cells: list[dict], task: str) -> dict:
+    """H4 on one task: the best mean over seeds among checkpoints trained within ``BUDGET_S``.
+    Below the target, the verdict is "no" only if the runs trained for the whole budget."""
+    af_cells, source = actionflow_cells(cells, task)
+    groups: dict[tuple[int, int], list[dict]] = {}
+    for c in af_cells:
+        if c.get("train_wall_s"):
+            groups.setdefault((c["step"], c["inference_steps"]), []).append(c)
+    best, trained_s = None, 0.0
+    for (step, k), group in groups.items():
+        trained_s = max(trained_s, statistics.fmean(c["train_wall_s"] for c in group))
+        wall = statistics.fmean(c["train_wall_s"] * step / c["train_steps"] for c in group)
+        if wall > BUDGET_S:
+            continue
+        success = mean_std([c["pc_success"] for c in group])
+        if best is None or success[0] > best["success"][0]:
+            best = {"step": step, "inference_steps": k, "train_wall_s": wall, "success": success,
+                    "seeds": sorted(c["seed"] for c in group)}  # fmt: skip
+    out = {"task": task, "source": source, "best": best, "holds": None}
+    if best is not None and best["success"][0] >= TARGET_SUCCESS:
+        out["holds"] = True
+    elif best is not None and trained_s >= BUDGET_S:
+        out["holds"] = False
+    elif best is not None:
+        out["why"] = f"not reached in the {trained_s / 60:.0f} min trained (budget not covered)"
+    return out
+
+
+def _verdict(check: dict) -> str:
+    return check.get("why", "no cells") if check["holds"] is None else "yes" if check["holds"] else "no"
+
+
+def _fmt(row: dict | None) -> str:
+    if row is None:
+        return "-"
+    (m, s), wall = row["success"], row["train_wall_s"]
+    minutes = f", {wall / 60:.0f} min" if wall else ""
+    return f"{m:.0f} +- {s:.0f} (n={len(row['seeds'])}, step {row['step']}{minutes})"
+
+
+def _row(*values) -> str:
+    return "| " + " | ".join(str(v) for v in values) + " |"
+
+
+def format_report(report: dict) -> str:
+    lines = []
+    for key, reference in (("h1", "diffusion"), ("h2", "euclidean_flow")):
+        lines += [
+            f"{key.upper()}: ActionFlow >= {reference} at IS={FEW_IS} on every task "
+            "(last checkpoint, mean +- std over seeds)",
+            "",
+            _row("task", "ActionFlow", reference, "holds", "ActionFlow's runs"),
+            _row("---", "---", "---", "---", "---"),
+        ]
+        lines += [
+            _row(c["task"], _fmt(c["actionflow"]), _fmt(c["reference"]), _verdict(c), c["source"])
+            for c in report[key]
+        ]
+        tested = [c for c in report[key] if c["holds"] is not None]
+        held = [c["task"] for c in tested if c["holds"]]
+        untested = [c["task"] for c in report[key] if c["holds"] is None]
+        summary = f"Holds on {len(held)} of {len(tested)} tasks with a verdict" if tested else "No verdict"
+        lines += ["", summary + (f"; none on {', '.join(untested)}." if untested else "."), ""]
+    lines += [f"H3: ActionFlow keeps >= {KEPT_FRACTION:.0%} of its D0 success on D1 and D2 (last checkpoint)"]
+    lines.append("")
+    if report["h3"]:
+        lines += [
+            _row("task", "variant", "IS", "seeds", "D0 %", "variant %", "kept", "holds"),
+            _row("---", "---", "---:", "---:", "---:", "---:", "---:", "---"),
+        ]
+    else:
+        lines.append("No D1/D2 evaluations are stored.")
+    for r in report["h3"]:
+        d0, on = (f"{r[k]:.0f}" if k in r else "-" for k in ("d0", "success"))
+        kept = "-" if r["kept"] is None else f"{r['kept']:.0%}"
+        holds = "D0 is 0 %" if "d0" in r and r["kept"] is None else _verdict(r)
+        seeds = len(r["seeds"])
+        lines.append(_row(r["task"], r["variant"], r["inference_steps"], seeds, d0, on, kept, holds))
+    lines += [
+        "",
+        f"H4: ActionFlow >= {TARGET_SUCCESS:.0f} % within {BUDGET_S / 60:.0f} minutes of CPU training",
+        "",
+        _row("task", "best checkpoint within the budget", "IS", "holds", "ActionFlow's runs"),
+        _row("---", "---", "---:", "---", "---"),
+    ]
+    for c in report["h4"]:
+        best = c["best"]
+        k = "-" if best is None else best["inference_steps"]
+        lines.append(_row(c["task"], _fmt(best), k, _verdict(c), c["source"]))
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> dict:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--tasks", default=",".join(TASKS))
+    ap.add_argument("--results", type=Path, default=RESULTS, help="folder of the <task>.json study files")
+    args = ap.parse_args(argv)
+    report = {"h1": [], "h2": [], "h3": [], "h4": []}
+    for task in [t for t in args.tasks.split(",") if t]:
+        path = args.results / f"{task}.json"
+        cells = json.loads(path.read_text())["cells"] if path.exists() else []
+        report["h1"].append(check_reference(cells, task, "diffusion"))
+        report["h2"].append(check_reference(cells, task, "euclidean_flow"))
+        report["h3"] += check_variants(cells, task)
+        if task in H4_TASKS:
+            report["h4"].append(check_budget(cells, task))
+    print(format_report(report))
+    return report
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,91 @@
+"""benchmarks/hypotheses.py: each hypothesis of the learning study gets a verdict from the stored
+cells only where the figures can give one, and says why not elsewhere."""
+
+import json
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
+import hypotheses
+
+
+def _cell(setting, seed, k, success, study="comparison", task="StackThree_D0", step=6000, wall=600.0, **kw):
+    cell = {"study": study, "setting": setting, "seed": seed, "step": step, "eval_task": task,
+            "inference_steps": k, "time_spacing": "checkpoint", "n_episodes": 50, "eval_seed": 1000,
+            "pc_success": success, "train_steps": 6000, "train_wall_s": wall, "demos": 100,
+            "batch_size": 64, "lr": 1e-3, "preset": "cpu", "cameras": "", "image_size": None,
+            "episode_length": None}  # fmt: skip
+    return cell | kw
+
+
+def test_references_are_compared_at_two_steps_on_the_last_checkpoint():
+    cells = [_cell("actionflow", s, 2, v) for s, v in ((0, 70.0), (1, 90.0))]
+    cells += [_cell("actionflow", 0, 2, 0.0, step=2000)]  # an earlier checkpoint: not compared
+    cells += [_cell("actionflow", 0, 10, 0.0)]  # another IS
+    cells += [_cell("diffusion", s, 2, 75.0, wall=2400.0) for s in (0, 1)]
+    cells += [_cell("euclidean_flow", s, 2, 85.0) for s in (0, 1)]
+    h1 = hypotheses.check_reference(cells, "StackThree_D0", "diffusion")
+    h2 = hypotheses.check_reference(cells, "StackThree_D0", "euclidean_flow")
+    assert (h1["holds"], h2["holds"]) == (True, False)
+    assert h1["actionflow"]["success"] == pytest.approx((80.0, 10.0))
+    assert (h1["actionflow"]["step"], h1["actionflow"]["seeds"]) == (6000, [0, 1])
+    assert h1["reference"]["train_wall_s"] == 2400.0 and h1["source"] == "comparison/actionflow"
+
+
+def test_no_verdict_across_protocols_or_without_a_policys_cells():
+    cells = [_cell("actionflow", 0, 2, 90.0), _cell("diffusion", 0, 2, 10.0, batch_size=256)]
+    check = hypotheses.check_reference(cells, "StackThree_D0", "diffusion")
+    assert check["holds"] is None and check["why"] == "training protocols differ in batch_size"
+    check = hypotheses.check_reference(cells, "StackThree_D0", "euclidean_flow")
+    assert check["holds"] is None and check["why"] == "not run at IS=2: euclidean_flow"
+
+
+def test_actionflow_falls_back_to_the_ablation_runs_of_its_configuration_only():
+    ablation = [_cell("noise_concentrated", 0, 2, 60.0, study="ablation")]
+    ablation += [_cell("default", 0, 2, 99.0, study="ablation")]  # another configuration
+    cells, source = hypotheses.actionflow_cells(ablation, "StackThree_D0")
+    assert [c["pc_success"] for c in cells] == [60.0] and source == "ablation/noise_concentrated"
+    own = [_cell("actionflow", 0, 2, 80.0)]
+    cells, source = hypotheses.actionflow_cells(ablation + own, "StackThree_D0")
+    assert [c["pc_success"] for c in cells] == [80.0] and source == "comparison/actionflow"
+
+
+def test_variants_keep_a_fraction_of_the_d0_success_over_common_seeds():
+    cells = [_cell("actionflow", s, 10, v) for s, v in ((0, 80.0), (1, 60.0), (2, 100.0))]
+    cells += [_cell("actionflow", s, 10, v, task="StackThree_D1") for s, v in ((0, 72.0), (1, 54.0))]
+    cells += [_cell("actionflow", 0, 10, 50.0, task="StackThree_D2")]
+    rows = {r["variant"]: r for r in hypotheses.check_variants(cells, "StackThree_D0")}
+    d1, d2 = rows["StackThree_D1"], rows["StackThree_D2"]
+    assert d1["seeds"] == [0, 1] and d1["d0"] == 70.0 and d1["kept"] == pytest.approx(0.9)
+    assert d1["holds"] is True
+    assert d2["kept"] == pytest.approx(50 / 80) and d2["holds"] is False
+    assert hypotheses.check_variants(cells, "Lift") == []  # no D0 in the name: no variants
+    zero = [_cell("actionflow", 0, 10, 0.0), _cell("actionflow", 0, 10, 0.0, task="StackThree_D1")]
+    (row,) = hypotheses.check_variants(zero, "StackThree_D0")
+    assert row["kept"] is None and row["holds"] is None
+
+
+def test_budget_counts_only_checkpoints_trained_within_it():
+    late = [_cell("actionflow", s, 2, 95.0, step=6000, wall=4800.0) for s in (0, 1)]  # 80 min
+    early = [_cell("actionflow", s, 2, 70.0, step=3000, wall=4800.0) for s in (0, 1)]  # 40 min
+    check = hypotheses.check_budget(late + early, "StackThree_D0")
+    assert check["best"]["step"] == 3000 and check["best"]["train_wall_s"] == 2400.0
+    assert check["holds"] is False  # trained past the budget, below the target inside it
+    check = hypotheses.check_budget([_cell("actionflow", 0, 2, 85.0, wall=600.0)], "StackThree_D0")
+    assert check["holds"] is True
+    check = hypotheses.check_budget([_cell("actionflow", 0, 2, 70.0, wall=600.0)], "StackThree_D0")
+    assert check["holds"] is None and "budget not covered" in check["why"]
+
+
+def test_the_report_names_every_task_and_its_verdict(tmp_path, capsys):
+    cells = [_cell("actionflow", 0, 2, 90.0), _cell("diffusion", 0, 2, 10.0)]
+    (tmp_path / "StackThree_D0.json").write_text(json.dumps({"task": "StackThree_D0", "cells": cells}))
+    report = hypotheses.main(["--tasks", "StackThree_D0,Square", "--results", str(tmp_path)])
+    assert [c["holds"] for c in report["h1"]] == [True, None]
+    text = capsys.readouterr().out
+    row = "| StackThree_D0 | 90 +- 0 (n=1, step 6000, 10 min) | 10 +- 0 (n=1, step 6000, 10 min) | yes |"
+    assert row in text
+    assert "Holds on 1 of 1 tasks with a verdict; none on Square." in text
+    assert "| Square | - | - | no cells |" in text
