@@ -193,7 +193,7 @@ def run_study(args, env: dict, data: Path, repo_id: str, collect) -> int:
                 return [
                     k for k in steps
                     if CellKey(args.study, name, seed, step, eval_task, k, spacing,
-                               args.eval_episodes, args.eval_seed) not in store
+                               args.eval_episodes, args.eval_seed, args.episode_length) not in store
                 ]  # fmt: skip
 
             grid = [(st, task, sp) for st in chosen for task in eval_tasks for sp in spacings]

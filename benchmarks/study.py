@@ -5,7 +5,8 @@ A **setting** is a policy type plus ``lerobot-train`` overrides on top of the sh
 (:data:`COMMON`, the CPU sizes of :data:`CPU_SIZE`). A **run** is one setting trained with one
 seed; it saves a checkpoint every ``eval_every`` steps. A **cell** is one evaluation: a run's
 checkpoint at one step, on one evaluation task, at one number of inference steps (IS) and time
-grid, over ``n_episodes`` episodes from env seed ``eval_seed`` on. Cells are the unit of resumption:
+grid, over ``n_episodes`` episodes from env seed ``eval_seed`` on, each capped at ``episode_length``
+control steps. Cells are the unit of resumption:
 :class:`ResultStore` writes the task's JSON after every evaluation (write to a temporary file,
 then rename), and a cell already in it is never evaluated again.
 
@@ -163,6 +164,7 @@ class CellKey:
     time_spacing: str  # "checkpoint" = the checkpoint's own grid
     n_episodes: int
     eval_seed: int
+    episode_length: int | None  # None = the task's own cap
 
 
 def cell_key(cell: dict) -> CellKey:
@@ -238,6 +240,12 @@ def summarise(cells: list[dict], study: str, eval_task: str, time_spacing: str =
     for c in chosen:
         groups.setdefault((c["setting"], c["inference_steps"]), []).append(c)
     for (setting, k), group in groups.items():
+        caps = sorted({c.get("episode_length") or 0 for c in group})
+        if len(caps) > 1:
+            raise ValueError(
+                f"{study}/{setting} at IS={k} on {eval_task} has cells of different episode caps "
+                f"{[cap or None for cap in caps]} (None: the task's own): summarise one cap at a time"
+            )
         by_step: dict[int, dict[int, float]] = {}
         for c in group:
             by_step.setdefault(c["step"], {})[c["seed"]] = c["pc_success"]

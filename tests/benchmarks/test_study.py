@@ -22,11 +22,11 @@ from study import (
 )
 
 
-def _cell(setting, seed, step, k, pc, study="ablation", task="Lift", spacing="checkpoint"):
+def _cell(setting, seed, step, k, pc, study="ablation", task="Lift", spacing="checkpoint", cap=None):
     return {
         "study": study, "setting": setting, "seed": seed, "step": step, "eval_task": task,
         "inference_steps": k, "time_spacing": spacing, "n_episodes": 50, "eval_seed": 1000,
-        "pc_success": pc,
+        "episode_length": cap, "pc_success": pc,
     }  # fmt: skip
 
 
@@ -68,6 +68,23 @@ def test_summary_gives_last_and_best_step_over_seeds():
     assert row["last_step"] == 3000 and row["last"] == pytest.approx((80.0, 10.0))
     assert row["best_step"] == 2000 and row["best"] == pytest.approx((95.0, 5.0))
     assert row["last_seeds"] == row["best_seeds"] == 2
+
+
+def test_an_episode_cap_is_part_of_a_cells_identity_and_caps_are_not_averaged(tmp_path):
+    """A rerun with another episode cap evaluates again instead of reusing the stored cell, and a
+    summary refuses to pool the two caps (a cap changes the success rate)."""
+    store = ResultStore(tmp_path / "Lift.json", "Lift")
+    store.add(_cell("default", 0, 1000, 2, 50.0, cap=200))
+    assert cell_key(_cell("default", 0, 1000, 2, 0.0, cap=400)) not in store
+    store.add(_cell("default", 0, 1000, 2, 90.0, cap=400))
+    cells = list(ResultStore(tmp_path / "Lift.json", "Lift").cells.values())
+    assert len(cells) == 2
+    with pytest.raises(
+        ValueError, match=r"ablation/default at IS=2 on Lift has cells of different episode caps \[200, 400\]"
+    ):
+        summarise(cells, "ablation", "Lift")
+    (row,) = summarise(cells[:1], "ablation", "Lift")  # one cap: summarised
+    assert row["last"] == (50.0, 0.0)
 
 
 def test_mean_std_is_the_population_spread():
