@@ -1,7 +1,8 @@
 """The few-step study of issue #21 in one file: ``benchmarks/results/few_step.json``.
 
 Collects, from each task's study JSON (``benchmarks/results/<task>.json``, written by
-``run_results.py``), the cells evaluated on the training task, at every evaluated checkpoint, of:
+``run_results.py``), the cells evaluated on the training task with the study's episode cap
+(:data:`study.STUDY_CAPS`), at every evaluated checkpoint, of:
 
 - every few-step candidate (:data:`FEW_STEP`, ``--study ablation``) on the checkpoint's own
   time grid;
@@ -26,7 +27,7 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from study import ABLATIONS, COMPARISON, format_summary, study_cells, summarise
+from study import ABLATIONS, COMPARISON, STUDY_CAPS, format_summary, study_cells, summarise, with_cap
 
 #: The candidates of issue #21 (study settings) and the baseline they are compared with.
 FEW_STEP = (
@@ -54,11 +55,11 @@ def collect(task: str, results: Path) -> dict:
     """``{"cells", "summary", "targets"}`` of the few-step candidates, the exponential-grid row
     and the references on ``task`` (its own evaluation task)."""
     path = results / f"{task}.json"
-    data = json.loads(path.read_text())
-    candidates = [c for c in study_cells(data["cells"], "ablation", task) if c["setting"] in FEW_STEP]
-    on_grid = study_cells(data["cells"], "ablation", task, "exponential")
+    stored = with_cap(json.loads(path.read_text())["cells"], STUDY_CAPS.get(task))
+    candidates = [c for c in study_cells(stored, "ablation", task) if c["setting"] in FEW_STEP]
+    on_grid = study_cells(stored, "ablation", task, "exponential")
     exponential = [c for c in on_grid if c["setting"] == "default"]
-    references = [c for c in study_cells(data["cells"], "comparison", task) if c["setting"] in REFERENCES]
+    references = [c for c in study_cells(stored, "comparison", task) if c["setting"] in REFERENCES]
     if not candidates + exponential + references:
         raise SystemExit(
             f"{path} has no few-step cells of task {task!r}: none of the settings {list(FEW_STEP)} "

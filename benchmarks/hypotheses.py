@@ -19,6 +19,7 @@ is none) and the figures behind it::
   ``step / train_steps``: one CPU core per run here) is within the budget, the best mean over
   seeds at any evaluated IS.
 
+Only the cells of the study's episode cap of each task are read (:data:`study.STUDY_CAPS`).
 ActionFlow's cells are those of ``--study comparison --settings actionflow``; a task without
 them uses the ablation's runs of the same configuration
 (:data:`study.COMPARISON_ACTIONFLOW_IN_ABLATION`), and the tables say which.
@@ -33,7 +34,7 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from study import COMPARISON_ACTIONFLOW_IN_ABLATION, mean_std, study_cells
+from study import COMPARISON_ACTIONFLOW_IN_ABLATION, STUDY_CAPS, mean_std, study_cells, with_cap
 
 TASKS = ("Lift", "Square", "StackThree_D0", "Threading_D0", "Coffee_D0")
 H4_TASKS = ("StackThree_D0", "Threading_D0", "Square")
@@ -162,7 +163,8 @@ def _row(*values) -> str:
 
 
 def format_report(report: dict) -> str:
-    lines = []
+    caps = ", ".join(f"{task} {cap} control steps" for task, cap in STUDY_CAPS.items() if cap)
+    lines = [f"Cells of the study's episode caps only ({caps}; other tasks: their own).", ""]
     for key, reference in (("h1", "diffusion"), ("h2", "euclidean_flow")):
         lines += [
             f"{key.upper()}: ActionFlow >= {reference} at IS={FEW_IS} on every task "
@@ -218,6 +220,7 @@ def main(argv: list[str] | None = None) -> dict:
     for task in [t for t in args.tasks.split(",") if t]:
         path = args.results / f"{task}.json"
         cells = json.loads(path.read_text())["cells"] if path.exists() else []
+        cells = with_cap(cells, STUDY_CAPS.get(task))
         report["h1"].append(check_reference(cells, task, "diffusion"))
         report["h2"].append(check_reference(cells, task, "euclidean_flow"))
         report["h3"] += check_variants(cells, task)

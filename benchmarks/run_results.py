@@ -59,6 +59,7 @@ from study import (
     format_summary,
     plot_study,
     summarise,
+    with_cap,
 )
 from train_runs import run_logged, train_run
 
@@ -239,7 +240,7 @@ def run_study(args, env: dict, data: Path, repo_id: str, collect) -> int:
                             "date": time.strftime("%Y-%m-%d", time.gmtime()),
                         }
                     )  # fmt: skip
-    cells = list(store.cells.values())
+    cells = with_cap(list(store.cells.values()), args.episode_length)
     for eval_task in eval_tasks:
         for spacing in spacings:
             rows = summarise(cells, args.study, eval_task, spacing)

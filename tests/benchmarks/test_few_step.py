@@ -13,10 +13,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
 import few_step
 
 
-def _cell(setting, seed, k, success, eval_task="Lift", spacing="checkpoint", step=3000, study="ablation"):
+def _cell(
+    setting, seed, k, success, eval_task="Lift", spacing="checkpoint", step=3000, study="ablation", cap=200
+):
     return {"study": study, "setting": setting, "seed": seed, "step": step, "eval_task": eval_task,
             "inference_steps": k, "time_spacing": spacing, "n_episodes": 50, "eval_seed": 1000,
-            "pc_success": success}  # fmt: skip
+            "episode_length": cap, "pc_success": success}  # fmt: skip
 
 
 def test_the_file_keeps_the_candidates_cells_and_the_table_their_seed_statistics(tmp_path):
@@ -30,6 +32,7 @@ def test_the_file_keeps_the_candidates_cells_and_the_table_their_seed_statistics
         _cell("default", 0, 2, 60.0, eval_task="Lift_scene"),  # another evaluation task
         _cell("squash_off", 0, 2, 20.0, spacing="exponential"),  # not the default on that grid
         _cell("actionflow", 0, 2, 30.0, study="comparison"),  # not a reference policy
+        _cell("euclidean_flow", 1, 2, 95.0, study="comparison", cap=None),  # not the study's Lift cap
     ]
     stored = {"task": "Lift", "cells": cells + grid + reference + others}
     (tmp_path / "Lift.json").write_text(json.dumps(stored))

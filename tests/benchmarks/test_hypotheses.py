@@ -89,3 +89,14 @@ def test_the_report_names_every_task_and_its_verdict(tmp_path, capsys):
     assert row in text
     assert "Holds on 1 of 1 tasks with a verdict; none on Square." in text
     assert "| Square | - | - | no cells |" in text
+
+
+def test_only_the_studys_episode_cap_is_read(tmp_path):
+    """Lift's study cap is 200 steps: cells of another cap (here the task's own) are left out."""
+    cells = [_cell("actionflow", 0, 2, 90.0, task="Lift", episode_length=200)]
+    cells += [_cell("diffusion", 0, 2, 10.0, task="Lift", episode_length=200)]
+    cells += [_cell("diffusion", 1, 2, 99.0, task="Lift", episode_length=None)]  # another cap
+    (tmp_path / "Lift.json").write_text(json.dumps({"task": "Lift", "cells": cells}))
+    report = hypotheses.main(["--tasks", "Lift", "--results", str(tmp_path)])
+    (h1,) = report["h1"]
+    assert h1["reference"]["seeds"] == [0] and h1["holds"] is True
