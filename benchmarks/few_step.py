@@ -63,7 +63,8 @@ def collect(task: str, results: Path) -> dict:
     if not candidates + exponential + references:
         raise SystemExit(
             f"{path} has no few-step cells of task {task!r}: none of the settings {list(FEW_STEP)} "
-            "evaluated on the task itself (settings with cameras are not collected)"
+            f"evaluated on the task itself with the study's episode cap {STUDY_CAPS.get(task)} "
+            "(settings with cameras are not collected)"
         )
     summary = summarise(candidates, "ablation", task)
     grid_rows = summarise(exponential, "ablation", task, "exponential")

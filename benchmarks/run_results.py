@@ -241,6 +241,9 @@ def run_study(args, env: dict, data: Path, repo_id: str, collect) -> int:
                         }
                     )  # fmt: skip
     cells = with_cap(list(store.cells.values()), args.episode_length)
+    other_caps = {c.get("episode_length") for c in store.cells.values()} - {args.episode_length}
+    if other_caps:
+        print(f"(cells of other episode caps not shown: {sorted(other_caps, key=str)}; --episode-length)")
     for eval_task in eval_tasks:
         for spacing in spacings:
             rows = summarise(cells, args.study, eval_task, spacing)

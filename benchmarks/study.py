@@ -247,16 +247,16 @@ def summarise(cells: list[dict], study: str, eval_task: str, time_spacing: str =
     :func:`study_cells`."""
     rows = []
     chosen = study_cells(cells, study, eval_task, time_spacing)
+    caps = {c.get("episode_length") for c in chosen}
+    if len(caps) > 1:
+        raise ValueError(
+            f"the {study} cells on {eval_task} have different episode caps {sorted(caps, key=str)} "
+            "(None: the task's own): summarise one cap at a time (study.with_cap)"
+        )
     groups: dict[tuple[str, int], list[dict]] = {}
     for c in chosen:
         groups.setdefault((c["setting"], c["inference_steps"]), []).append(c)
     for (setting, k), group in groups.items():
-        caps = sorted({c.get("episode_length") or 0 for c in group})
-        if len(caps) > 1:
-            raise ValueError(
-                f"{study}/{setting} at IS={k} on {eval_task} has cells of different episode caps "
-                f"{[cap or None for cap in caps]} (None: the task's own): summarise one cap at a time"
-            )
         by_step: dict[int, dict[int, float]] = {}
         for c in group:
             by_step.setdefault(c["step"], {})[c["seed"]] = c["pc_success"]

@@ -68,15 +68,39 @@ def test_variants_keep_a_fraction_of_the_d0_success_over_common_seeds():
 
 
 def test_budget_counts_only_checkpoints_trained_within_it():
-    late = [_cell("actionflow", s, 2, 95.0, step=6000, wall=4800.0) for s in (0, 1)]  # 80 min
     early = [_cell("actionflow", s, 2, 70.0, step=3000, wall=4800.0) for s in (0, 1)]  # 40 min
-    check = hypotheses.check_budget(late + early, "StackThree_D0")
+    late = [_cell("actionflow", s, 2, 75.0, step=6000, wall=4800.0) for s in (0, 1)]  # 80 min
+    check = hypotheses.check_budget(early + late, "StackThree_D0")
     assert check["best"]["step"] == 3000 and check["best"]["train_wall_s"] == 2400.0
-    assert check["holds"] is False  # trained past the budget, below the target inside it
+    assert check["holds"] is False  # below the target inside the budget and just past it
+    above = [dict(c, pc_success=95.0) for c in late]  # the target is crossed somewhere in 40-80 min
+    check = hypotheses.check_budget(early + above, "StackThree_D0")
+    assert (
+        check["holds"] is None and check["why"] == "95 % at 80 min, past the budget; not evaluated in between"
+    )
     check = hypotheses.check_budget([_cell("actionflow", 0, 2, 85.0, wall=600.0)], "StackThree_D0")
     assert check["holds"] is True
     check = hypotheses.check_budget([_cell("actionflow", 0, 2, 70.0, wall=600.0)], "StackThree_D0")
     assert check["holds"] is None and "budget not covered" in check["why"]
+    check = hypotheses.check_budget([_cell("actionflow", 0, 2, 90.0, wall=None)], "StackThree_D0")
+    assert check["holds"] is None and check["why"] == "no training time stored"
+
+
+def test_variants_are_read_from_the_runs_of_the_d0_cells():
+    """D0 from the comparison's runs and D1 only from the ablation's: not the same runs, no ratio;
+    a variant evaluated where D0 was not says so."""
+    cells = [_cell("actionflow", 0, 10, 80.0), _cell("actionflow", 0, 10, 40.0, step=2000)]
+    cells += [_cell("noise_concentrated", 0, 10, 80.0, study="ablation", task="StackThree_D1")]
+    cells += [_cell("actionflow", 0, 10, 70.0, task="StackThree_D2", step=4000)]
+    rows = {r["variant"]: r for r in hypotheses.check_variants(cells, "StackThree_D0")}
+    assert set(rows) == {"StackThree_D2"}
+    assert rows["StackThree_D2"]["why"] == "D0 not evaluated with these seeds at step 4000"
+
+
+def test_a_seed_with_two_cells_of_one_checkpoint_is_refused():
+    cells = [_cell("actionflow", 0, 2, 90.0), _cell("actionflow", 0, 2, 70.0, n_episodes=20)]
+    with pytest.raises(ValueError, match="a seed has several cells"):
+        hypotheses.check_reference(cells, "StackThree_D0", "diffusion")
 
 
 def test_the_report_names_every_task_and_its_verdict(tmp_path, capsys):

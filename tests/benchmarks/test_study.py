@@ -80,7 +80,7 @@ def test_an_episode_cap_is_part_of_a_cells_identity_and_caps_are_not_averaged(tm
     cells = list(ResultStore(tmp_path / "Lift.json", "Lift").cells.values())
     assert len(cells) == 2
     with pytest.raises(
-        ValueError, match=r"ablation/default at IS=2 on Lift has cells of different episode caps \[200, 400\]"
+        ValueError, match=r"the ablation cells on Lift have different episode caps \[200, 400\]"
     ):
         summarise(cells, "ablation", "Lift")
     (row,) = summarise(cells[:1], "ablation", "Lift")  # one cap: summarised
