@@ -212,7 +212,8 @@ def run_study(args, env: dict, data: Path, repo_id: str, collect) -> int:
                 where = (
                     out / "eval" / args.study / _folder(base, camera_suffix) / f"seed{seed}" / f"step{step}"
                 )
-                where = where / eval_task / spacing
+                cap = "" if args.episode_length is None else f"_cap{args.episode_length}"
+                where = where / eval_task / (spacing + cap)  # a folder per evaluation protocol
                 if where.exists():
                     import shutil
 

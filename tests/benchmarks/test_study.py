@@ -162,6 +162,11 @@ def test_a_sampling_only_setting_evaluates_the_runs_it_names_without_training(tm
     store = ResultStore(results, "Lift")
     midpoint = [c for c in store.cells.values() if c["setting"] == "solver_midpoint"]
     assert len(midpoint) == 2 and all(c["trained_as"] == "default" and c["overrides"] == [] for c in midpoint)
+    # another episode cap is another evaluation, in its own folder (the first one's is kept)
+    assert run_results.main([*common, "--settings", "default", "--episode-length", "7"]) == 0
+    assert swept[-1][0] == default_eval[0] and swept[-1][2] != default_eval[2]
+    capped = [c for c in ResultStore(results, "Lift").cells.values() if c["episode_length"] == 7]
+    assert len(capped) == 2
 
 
 @pytest.mark.parametrize(
