@@ -12,12 +12,13 @@ is none) and the figures behind it::
   demonstrations, batch, learning rate, size preset, cameras, episode cap); their training steps
   and wall-clock may differ (an equal budget is either), and both are printed.
 - **H3**: ActionFlow keeps >= :data:`KEPT_FRACTION` of its D0 success on the D1 and D2
-  variants: the same checkpoints (last) evaluated on ``<name>_D1`` and ``<name>_D2``, per IS,
-  over the seeds evaluated on both.
+  variants: the D0 runs' checkpoints evaluated on ``<name>_D1`` and ``<name>_D2`` (the variant's
+  last evaluated step), per IS, over the seeds evaluated on both at that step.
 - **H4**: ActionFlow reaches >= :data:`TARGET_SUCCESS` % within :data:`BUDGET_S` of training on
   :data:`H4_TASKS`: among the checkpoints whose training time (the run's ``train_wall_s`` times
   ``step / train_steps``: one CPU core per run here) is within the budget, the best mean over
-  seeds at any evaluated IS.
+  seeds at any evaluated IS. "No" needs the first checkpoint past the budget below the target
+  too; runs that stop before the budget get no verdict.
 
 Only the cells of the study's episode cap of each task are read (:data:`study.STUDY_CAPS`).
 ActionFlow's cells are those of ``--study comparison --settings actionflow``; a task without
