@@ -45,7 +45,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from lerobot_actionflow.policies.execution import execution_window, num_skipped, validate_execution_fields
+from lerobot_actionflow.policies.execution import execution_window, num_skipped
 from lerobot_actionflow.schema import ACTION_KEY
 
 MODES = ("plain", "scheme", "rtc")
@@ -106,7 +106,7 @@ def configure_execution(
     cfg.execution_delay_s = float(latency_s or 0.0) if scheme_on else 0.0
     cfg.measure_inference_delay = scheme_on and latency_s is None
     cfg.control_period_s = control_period_s
-    validate_execution_fields(cfg)
+    cfg.validate_execution()
 
 
 class ChunkLatency:

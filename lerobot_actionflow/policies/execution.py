@@ -1,8 +1,7 @@
 """How a policy's action chunks are executed in real time (paper App. G), shared by both policies.
 
-Three options of ``select_action``, all off by default (each config's fields
-``execution_delay_steps``, ``execution_delay_s``, ``measure_inference_delay``,
-``control_period_s`` and ``target_smoothing``):
+Three options of ``select_action``, all off by default (the fields of
+:class:`RealTimeExecutionConfig`, a base of both policies' configs):
 
 * **Latency-aware skipping.** A chunk predicted from the observation of step ``n`` holds the
   actions of steps ``n, n + 1, ...`` (it starts at the current step). If the chunk becomes
@@ -75,9 +74,63 @@ def execution_window(chunk_len: int, skipped: int, n_action_steps: int) -> slice
     return slice(start, min(start + n_action_steps, chunk_len))
 
 
+@dataclass
+class RealTimeExecutionConfig:
+    """The real-time execution fields of a policy config (App. G), shared by both flow policies;
+    the defaults keep the plain behaviour (no skipping, no smoothing).
+
+    Args:
+        execution_delay_steps: a fixed inference delay in control steps; the actions of the new
+            chunk that were due during the delay are skipped (a delay ``d`` skips ``ceil(d)``).
+        execution_delay_s: a fixed delay in seconds (converted with ``control_period_s``).
+        measure_inference_delay: add the measured wall-clock time of each chunk's inference.
+        control_period_s: seconds per control step (the paper: 0.04 at 25 Hz); needed for
+            delays in seconds.
+        target_smoothing [App. G: exponential smoothing]: weight ``alpha`` in (0, 1] of the new
+            action in ``y_n = blend(y_{n-1}, a_n, alpha)``, rotations along the SE(3) geodesic;
+            1 = no smoothing.
+
+    The paper's "execute two actions, then re-plan" is the policy's ``n_action_steps=2``.
+    """
+
+    execution_delay_steps: int = 0
+    execution_delay_s: float = 0.0
+    measure_inference_delay: bool = False
+    control_period_s: float | None = None
+    target_smoothing: float = 1.0
+
+    def validate_execution(self) -> None:
+        """Refuse execution options that cannot work (:class:`PolicyConfigError`)."""
+        steps = self.execution_delay_steps
+        require(
+            isinstance(steps, int) and not isinstance(steps, bool) and steps >= 0,
+            f"`execution_delay_steps` must be an integer >= 0, got {steps!r}",
+        )
+        delay_s = self.execution_delay_s
+        require(
+            isinstance(delay_s, (int, float)) and math.isfinite(delay_s) and delay_s >= 0,
+            f"`execution_delay_s` must be a number of seconds >= 0, got {delay_s!r}",
+        )
+        period = self.control_period_s
+        require(
+            period is None or (isinstance(period, (int, float)) and math.isfinite(period) and period > 0),
+            f"`control_period_s` must be None or seconds > 0, got {period!r}",
+        )
+        require(
+            period is not None or not (delay_s > 0 or self.measure_inference_delay),
+            "`execution_delay_s` > 0 and `measure_inference_delay` need `control_period_s` (seconds "
+            "per control step, e.g. 0.05 at 20 Hz) to turn seconds into skipped actions",
+        )
+        alpha = self.target_smoothing
+        require(
+            isinstance(alpha, (int, float)) and 0 < alpha <= 1,
+            f"`target_smoothing` must be in (0, 1] (1: no smoothing), got {alpha!r}",
+        )
+
+
 @dataclass(frozen=True)
 class ExecutionOptions:
-    """The execution fields of a policy config (see the module docstring)."""
+    """The options of a :class:`RealTimeExecutionConfig`, as ``select_action`` applies them."""
 
     delay_steps: int = 0
     delay_s: float = 0.0
@@ -86,7 +139,7 @@ class ExecutionOptions:
     smoothing: float = 1.0
 
     @classmethod
-    def from_config(cls, config: Any) -> ExecutionOptions:
+    def from_config(cls, config: RealTimeExecutionConfig) -> ExecutionOptions:
         return cls(
             delay_steps=config.execution_delay_steps,
             delay_s=config.execution_delay_s,
@@ -119,35 +172,6 @@ def timed(fn: Callable[[], Tensor], device: torch.device, measure: bool = True) 
     if device.type == "cuda":
         torch.cuda.synchronize(device)
     return out, perf_counter() - start
-
-
-def validate_execution_fields(config: Any) -> None:
-    """Refuse execution options that cannot work (:class:`PolicyConfigError`)."""
-    steps = config.execution_delay_steps
-    require(
-        isinstance(steps, int) and not isinstance(steps, bool) and steps >= 0,
-        f"`execution_delay_steps` must be an integer >= 0, got {steps!r}",
-    )
-    delay_s = config.execution_delay_s
-    require(
-        isinstance(delay_s, (int, float)) and math.isfinite(delay_s) and delay_s >= 0,
-        f"`execution_delay_s` must be a number of seconds >= 0, got {delay_s!r}",
-    )
-    period = config.control_period_s
-    require(
-        period is None or (isinstance(period, (int, float)) and math.isfinite(period) and period > 0),
-        f"`control_period_s` must be None or seconds > 0, got {period!r}",
-    )
-    require(
-        period is not None or not (delay_s > 0 or config.measure_inference_delay),
-        "`execution_delay_s` > 0 and `measure_inference_delay` need `control_period_s` (seconds per "
-        "control step, e.g. 0.05 at 20 Hz) to turn seconds into skipped actions",
-    )
-    alpha = config.target_smoothing
-    require(
-        isinstance(alpha, (int, float)) and 0 < alpha <= 1,
-        f"`target_smoothing` must be in (0, 1] (1: no smoothing), got {alpha!r}",
-    )
 
 
 # -- smoothing of the commanded target ----------------------------------------------------------------

@@ -18,7 +18,7 @@ from lerobot_actionflow.policies.config_errors import (
     require_positive,
     require_probability,
 )
-from lerobot_actionflow.policies.execution import validate_execution_fields
+from lerobot_actionflow.policies.execution import RealTimeExecutionConfig
 from lerobot_actionflow.policies.flow_options import (
     validate_few_step_fields,
     validate_solver_field,
@@ -45,7 +45,7 @@ from lerobot_actionflow.schema import (
 
 @PreTrainedConfig.register_subclass("actionflow")
 @dataclass
-class ActionflowConfig(PreTrainedConfig):
+class ActionflowConfig(PreTrainedConfig, RealTimeExecutionConfig):
     """ActionFlow: SE(3) flow matching on end-effector action poses with an IPA transformer.
 
     Inputs: ``observation.poses`` ``(N, 7)`` (required; row 0 the end-effector), optional
@@ -138,17 +138,10 @@ class ActionflowConfig(PreTrainedConfig):
             artefact of ``actionflow-export`` stored with the checkpoint takes precedence
             (:mod:`lerobot_actionflow.policies.actionflow.exported`).
 
-    Execution in real time (App. G; :mod:`lerobot_actionflow.policies.execution`), applied by
-    ``select_action``; the defaults keep the plain behaviour (no skipping, no smoothing):
-        execution_delay_steps: a fixed inference delay in control steps; the actions of the
-            new chunk that were due during the delay are skipped (delay d skips ceil(d)).
-        execution_delay_s: a fixed delay in seconds (converted with ``control_period_s``).
-        measure_inference_delay: add the measured wall-clock time of each chunk's inference.
-        control_period_s: seconds per control step (the paper: 0.04 at 25 Hz); needed for
-            delays in seconds.
-        target_smoothing [App. G: exponential smoothing]: weight alpha in (0, 1] of the new
-            action in ``y_n = blend(y_{n-1}, a_n, alpha)``, rotations along the SE(3) geodesic;
-            1 = no smoothing.
+    Execution in real time (App. G), applied by ``select_action``: the fields of
+    :class:`lerobot_actionflow.policies.execution.RealTimeExecutionConfig`
+    (``execution_delay_steps``, ``execution_delay_s``, ``measure_inference_delay``,
+    ``control_period_s``, ``target_smoothing``); the defaults keep the plain behaviour.
     The paper's "execute two actions, then re-plan" is ``n_action_steps=2``. For real-time
     chunking (``lerobot-rollout --inference.type=rtc``) see ``predict_action_chunk``.
     """
@@ -228,12 +221,6 @@ class ActionflowConfig(PreTrainedConfig):
     optimizer_grad_clip_norm: float = 1.0
     scheduler_warmup_steps: int = 500
 
-    execution_delay_steps: int = 0
-    execution_delay_s: float = 0.0
-    measure_inference_delay: bool = False
-    control_period_s: float | None = None
-    target_smoothing: float = 1.0
-
     def __post_init__(self):
         super().__post_init__()
         self.validate_values()
@@ -283,7 +270,7 @@ class ActionflowConfig(PreTrainedConfig):
             self.image_size is None or (len(self.image_size) == 2 and min(self.image_size) >= 1),
             f"`image_size` must be (height, width) >= 1, got {self.image_size!r}",
         )
-        validate_execution_fields(self)
+        self.validate_execution()
         require(
             not self.pose_entities
             or (

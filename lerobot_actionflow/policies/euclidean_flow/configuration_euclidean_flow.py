@@ -34,7 +34,7 @@ from lerobot_actionflow.policies.config_errors import (
     require_positive,
     require_probability,
 )
-from lerobot_actionflow.policies.execution import validate_execution_fields
+from lerobot_actionflow.policies.execution import RealTimeExecutionConfig
 from lerobot_actionflow.policies.flow_options import validate_solver_field, validate_train_time_fields
 from lerobot_actionflow.policies.point_cloud_inputs import (
     check_point_cloud_feature,
@@ -53,7 +53,7 @@ TIME_SPACINGS = ("uniform", "exponential")
 
 @PreTrainedConfig.register_subclass("euclidean_flow")
 @dataclass
-class EuclideanFlowConfig(PreTrainedConfig):
+class EuclideanFlowConfig(PreTrainedConfig, RealTimeExecutionConfig):
     """Rectified-flow policy on flat action chunks.
 
     Chunking (as Diffusion Policy): the network sees ``n_obs_steps`` observations and generates
@@ -80,10 +80,9 @@ class EuclideanFlowConfig(PreTrainedConfig):
     ``wrist_focus_threshold``, as in ``actionflow``
     (:mod:`lerobot_actionflow.policies.wrist_focus`).
 
-    Execution in real time (App. G; :mod:`lerobot_actionflow.policies.execution`), applied by
-    ``select_action``, with the same fields and defaults as ``actionflow`` (no skipping, no
-    smoothing): ``execution_delay_steps``, ``execution_delay_s``, ``measure_inference_delay``,
-    ``control_period_s``, ``target_smoothing``. Smoothing blends rotations along the SE(3)
+    Execution in real time (App. G), applied by ``select_action``: the fields of
+    :class:`lerobot_actionflow.policies.execution.RealTimeExecutionConfig`, as in ``actionflow``
+    (the defaults: no skipping, no smoothing). Smoothing blends rotations along the SE(3)
     geodesic, so it needs actions that are absolute EEF poses ``[x y z rot6d gripper]`` in their
     own units: a 10-D action with ``normalization_mapping["ACTION"] = IDENTITY``. With min-max
     normalised actions, apply :class:`lerobot_actionflow.policies.execution.TargetSmoother` to
@@ -171,13 +170,6 @@ class EuclideanFlowConfig(PreTrainedConfig):
     scheduler_name: str = "cosine"
     scheduler_warmup_steps: int = 500
 
-    # Execution in real time (see the class docstring).
-    execution_delay_steps: int = 0
-    execution_delay_s: float = 0.0
-    measure_inference_delay: bool = False
-    control_period_s: float | None = None
-    target_smoothing: float = 1.0
-
     def __post_init__(self):
         super().__post_init__()
         self.validate_values()
@@ -243,7 +235,7 @@ class EuclideanFlowConfig(PreTrainedConfig):
         )
         require(0 < self.crop_ratio <= 1.0, f"`crop_ratio` must be in (0, 1], got {self.crop_ratio}")
         require_ints(self, ("spatial_softmax_num_keypoints",))
-        validate_execution_fields(self)
+        self.validate_execution()
         validate_point_cloud_fields(self, ("point_cloud_width", "point_cloud_feature_dim"))
         require_positive(self, ("point_cloud_scale",))
         validate_wrist_focus_fields(self)
