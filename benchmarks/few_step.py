@@ -27,7 +27,16 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from study import ABLATIONS, COMPARISON, STUDY_CAPS, format_summary, study_cells, summarise, with_cap
+from study import (
+    ABLATIONS,
+    COMPARISON,
+    STUDY_CAPS,
+    format_summary,
+    protocol_mismatch,
+    study_cells,
+    summarise,
+    with_cap,
+)
 
 #: The candidates of issue #21 (study settings) and the baseline they are compared with.
 FEW_STEP = (
@@ -81,25 +90,35 @@ def target_checks(summary: list[dict]) -> list[dict]:
     """Per candidate row with ``FEW_IS`` and ``FULL_IS`` summaries: their last-checkpoint means,
     ``gap = full - few`` (points) and ``within_gap`` (gap <= :data:`TARGET_GAP_POINTS`), and per
     reference with a ``FEW_IS`` summary, its mean, step and ``at_or_above`` (the candidate's
-    ``FEW_IS`` mean >= the reference's). Only rows of the same last checkpoint step are compared:
-    where the steps differ the verdict is None (not comparable)."""
+    ``FEW_IS`` mean >= the reference's). A verdict is None where the rows are not comparable, and
+    ``why`` says how: their last checkpoint steps differ, or their training protocols
+    (:data:`study.PROTOCOL`)."""
     rows = {(r["setting"], r["inference_steps"]): r for r in summary}
     refs = {ref: rows[ref, FEW_IS] for ref in REFERENCES if (ref, FEW_IS) in rows}
+
+    def mismatch(a: dict, b: dict) -> str | None:
+        if a["last_step"] != b["last_step"]:
+            return "step differs"
+        return protocol_mismatch(a["protocol"], b["protocol"])
+
     checks = []
     for setting in dict.fromkeys(r["setting"] for r in summary):
         few, full = rows.get((setting, FEW_IS)), rows.get((setting, FULL_IS))
         if setting in REFERENCES or few is None or full is None:
             continue
-        step, gap = few["last_step"], full["last"][0] - few["last"][0]
+        gap, gap_why = full["last"][0] - few["last"][0], mismatch(few, full)
+        references = {}
+        for ref, r in refs.items():
+            why = mismatch(few, r)
+            references[ref] = {
+                "success": r["last"][0], "step": r["last_step"], "why": why,
+                "at_or_above": None if why else few["last"][0] >= r["last"][0],
+            }  # fmt: skip
         checks.append({
-            "setting": setting, "step": step, "seeds": few["last_seeds"],
-            "few": few["last"][0], "full": full["last"][0], "gap": gap,
-            "within_gap": gap <= TARGET_GAP_POINTS if full["last_step"] == step else None,
-            "references": {
-                ref: {"success": r["last"][0], "step": r["last_step"],
-                      "at_or_above": few["last"][0] >= r["last"][0] if r["last_step"] == step else None}
-                for ref, r in refs.items()
-            },
+            "setting": setting, "step": few["last_step"], "seeds": few["last_seeds"],
+            "few": few["last"][0], "full": full["last"][0], "gap": gap, "gap_why": gap_why,
+            "within_gap": None if gap_why else gap <= TARGET_GAP_POINTS,
+            "references": references,
         })  # fmt: skip
     return checks
 
@@ -108,15 +127,20 @@ def format_targets(checks: list[dict]) -> str:
     """Markdown: :func:`target_checks`, one row per candidate, and which references were not run."""
     refs = {ref: c["references"][ref] for c in checks for ref in c["references"]}
 
-    def verdict(v):
-        return "step differs" if v is None else "yes" if v else "no"
+    def verdict(value: bool | None, why: str | None) -> str:
+        return why if value is None else "yes" if value else "no"
 
     head = [f"IS={FEW_IS}", f"IS={FULL_IS}", "gap", f"within {TARGET_GAP_POINTS:g} points"]
     head += [f">= {ref} at IS={FEW_IS} ({r['success']:.0f}; {r['step']})" for ref, r in refs.items()]
     lines = ["| setting (seeds; step) | " + " | ".join(head) + " |", "| --- |" + " ---: |" * len(head)]
     for c in checks:
-        vals = [f"{c['few']:.0f}", f"{c['full']:.0f}", f"{c['gap']:.1f}", verdict(c["within_gap"])]
-        vals += [verdict(c["references"][ref]["at_or_above"]) for ref in refs]
+        vals = [
+            f"{c['few']:.0f}",
+            f"{c['full']:.0f}",
+            f"{c['gap']:.1f}",
+            verdict(c["within_gap"], c["gap_why"]),
+        ]
+        vals += [verdict(c["references"][ref]["at_or_above"], c["references"][ref]["why"]) for ref in refs]
         lines.append(f"| {c['setting']} ({c['seeds']}; {c['step']}) | " + " | ".join(vals) + " |")
     missing = [ref for ref in REFERENCES if ref not in refs]
     if missing:

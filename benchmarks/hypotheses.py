@@ -8,7 +8,7 @@ is none) and the figures behind it::
 
 - **H1, H2**: ActionFlow >= ``diffusion`` (H1) and >= ``euclidean_flow`` (H2) at IS =
   :data:`FEW_IS`, on the task itself: mean success over training seeds at each policy's last
-  checkpoint. No verdict where the two differ in their training protocol (:data:`PROTOCOL`:
+  checkpoint. No verdict where the two differ in their training protocol (:data:`study.PROTOCOL`:
   demonstrations, batch, learning rate, size preset, cameras, episode cap); their training steps
   and wall-clock may differ (an equal budget is either), and both are printed.
 - **H3**: ActionFlow keeps >= :data:`KEPT_FRACTION` of its D0 success on the D1 and D2
@@ -36,14 +36,20 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from few_step import FEW_IS, RESULTS
-from study import COMPARISON_ACTIONFLOW_IN_ABLATION, STUDY_CAPS, mean_std, study_cells, with_cap
+from study import (
+    COMPARISON_ACTIONFLOW_IN_ABLATION,
+    STUDY_CAPS,
+    mean_std,
+    protocol_mismatch,
+    protocol_of,
+    study_cells,
+    with_cap,
+)
 
 TASKS = ("Lift", "Square", "StackThree_D0", "Threading_D0", "Coffee_D0")
 H4_TASKS = ("StackThree_D0", "Threading_D0", "Square")
 KEPT_FRACTION = 0.9
 TARGET_SUCCESS, BUDGET_S = 80.0, 3600.0
-#: Cell fields that make two runs' training comparable (training steps excepted).
-PROTOCOL = ("demos", "batch_size", "lr", "preset", "cameras", "image_size", "episode_length")
 
 
 def actionflow_cells(cells: list[dict], eval_task: str, source: str | None = None) -> tuple[list[dict], str]:
@@ -83,13 +89,12 @@ def last_checkpoint(cells: list[dict], inference_steps: int) -> dict | None:
     step = max(c["step"] for c in chosen)
     at = _per_seed([c for c in chosen if c["step"] == step])
     walls = [c["train_wall_s"] * step / c["train_steps"] for c in at if c.get("train_wall_s")]
-    protocols = [{k: c.get(k) for k in PROTOCOL} for c in at]
     return {
         "step": step,
         "success": mean_std([c["pc_success"] for c in at]),
         "seeds": sorted(c["seed"] for c in at),
         "train_wall_s": statistics.fmean(walls) if walls else None,
-        "protocol": protocols[0] if all(p == protocols[0] for p in protocols) else None,
+        "protocol": protocol_of(at),
     }
 
 
@@ -102,11 +107,8 @@ def check_reference(cells: list[dict], task: str, reference: str) -> dict:
     if af is None or ref is None:
         missing = [name for name, row in (("actionflow", af), (reference, ref)) if row is None]
         out["why"] = f"not run at IS={FEW_IS}: {', '.join(missing)}"
-    elif af["protocol"] is None or ref["protocol"] is None:
-        out["why"] = "training protocols differ between the seeds of one policy"
-    elif af["protocol"] != ref["protocol"]:
-        differ = [k for k in PROTOCOL if af["protocol"][k] != ref["protocol"][k]]
-        out["why"] = f"training protocols differ in {', '.join(differ)}"
+    elif mismatch := protocol_mismatch(af["protocol"], ref["protocol"]):
+        out["why"] = mismatch
     else:
         out["holds"] = af["success"][0] >= ref["success"][0]
     return out

@@ -225,6 +225,25 @@ def with_cap(cells: list[dict], episode_length: int | None) -> list[dict]:
     return [c for c in cells if c.get("episode_length") == episode_length]
 
 
+#: Cell fields that make two runs' training comparable (training steps and wall-clock excepted:
+#: an equal step count and an equal time budget are both fair).
+PROTOCOL = ("demos", "batch_size", "lr", "preset", "cameras", "image_size", "episode_length")
+
+
+def protocol_of(cells: list[dict]) -> dict | None:
+    """The :data:`PROTOCOL` fields that all ``cells`` share, or None if they differ."""
+    protocols = [{k: c.get(k) for k in PROTOCOL} for c in cells]
+    return protocols[0] if protocols and all(p == protocols[0] for p in protocols) else None
+
+
+def protocol_mismatch(a: dict | None, b: dict | None) -> str | None:
+    """Why two :func:`protocol_of` results are not comparable, or None when they are equal."""
+    if a is None or b is None:
+        return "training protocols differ between the seeds of one policy"
+    differ = [k for k in PROTOCOL if a[k] != b[k]]
+    return f"training protocols differ in {', '.join(differ)}" if differ else None
+
+
 def mean_std(values: list[float]) -> tuple[float, float]:
     """Mean and population standard deviation (0 for one value)."""
     return statistics.fmean(values), statistics.pstdev(values) if len(values) > 1 else 0.0
@@ -263,6 +282,7 @@ def summarise(cells: list[dict], study: str, eval_task: str, time_spacing: str =
         last_step = max(by_step)
         best_step = max(by_step, key=lambda s: (statistics.fmean(by_step[s].values()), s))
         last, best = list(by_step[last_step].values()), list(by_step[best_step].values())
+        at_last = [c for c in group if c["step"] == last_step]
         rows.append(
             {
                 "setting": setting,
@@ -274,6 +294,7 @@ def summarise(cells: list[dict], study: str, eval_task: str, time_spacing: str =
                 "best": mean_std(best),
                 "best_seeds": len(best),
                 "episodes": sorted({c["n_episodes"] for c in group}),
+                "protocol": protocol_of(at_last),
             }
         )
     return sorted(rows, key=lambda r: (r["setting"], r["inference_steps"]))

@@ -55,7 +55,9 @@ def test_the_file_keeps_the_candidates_cells_and_the_table_their_seed_statistics
     assert "| noise_concentrated | 7.2 | - |" in text
     (check,) = out["tasks"]["Lift"]["targets"]  # the only row with IS = 2 and 10
     assert (check["setting"], check["gap"], check["within_gap"]) == ("noise_concentrated", 5.0, True)
-    assert check["references"] == {"euclidean_flow": {"success": 80.0, "step": 3000, "at_or_above": True}}
+    assert check["references"] == {
+        "euclidean_flow": {"success": 80.0, "step": 3000, "why": None, "at_or_above": True}
+    }
     assert "| noise_concentrated (2; 3000) | 95 | 100 | 5.0 | yes | yes |" in text
     assert "no verdict against them): diffusion." in text
 
@@ -67,8 +69,13 @@ def test_a_task_with_no_few_step_cells_is_named(tmp_path):
         few_step.main(["--tasks", "Lift", "--results", str(tmp_path)])
 
 
-def _summary_row(setting, k, mean, step=3000):
-    return {"setting": setting, "inference_steps": k, "last": (mean, 0.0), "last_step": step, "last_seeds": 3}
+PROTOCOL = {"demos": 100, "batch_size": 64, "lr": 1e-3, "preset": "cpu", "cameras": None, "image_size": None,
+            "episode_length": 200}  # fmt: skip
+
+
+def _summary_row(setting, k, mean, step=3000, protocol=PROTOCOL):
+    return {"setting": setting, "inference_steps": k, "last": (mean, 0.0), "last_step": step, "last_seeds": 3,
+            "protocol": protocol}  # fmt: skip
 
 
 @pytest.mark.parametrize(
@@ -100,6 +107,18 @@ def test_rows_of_different_checkpoint_steps_get_no_verdict():
     same = [dict(r, last_step=3000) for r in summary]  # control: the same rows at one step
     (check,) = few_step.target_checks(same)
     assert (check["within_gap"], check["references"]["euclidean_flow"]["at_or_above"]) == (False, True)
+
+
+def test_a_reference_trained_on_another_protocol_gets_no_verdict():
+    other = dict(PROTOCOL, lr=1e-4, batch_size=32)
+    summary = [_summary_row("default", 2, 90.0), _summary_row("default", 10, 92.0),
+               _summary_row("euclidean_flow", 2, 50.0, protocol=other)]  # fmt: skip
+    (check,) = few_step.target_checks(summary)
+    assert check["within_gap"] is True and check["references"]["euclidean_flow"]["at_or_above"] is None
+    assert "| yes | training protocols differ in batch_size, lr |" in few_step.format_targets([check])
+    same = [dict(r, protocol=PROTOCOL) for r in summary]  # control: one protocol
+    (check,) = few_step.target_checks(same)
+    assert check["references"]["euclidean_flow"]["at_or_above"] is True
 
 
 def test_a_task_without_results_is_named(tmp_path):
