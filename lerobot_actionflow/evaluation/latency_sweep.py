@@ -24,6 +24,13 @@ Usage::
 Writes ``<output_dir>/latency_results.json`` (every cell, with its per-episode records),
 ``latency_results.md`` (success and smoothness tables) and, if matplotlib is installed,
 ``latency_success.png`` (success against latency, one line per checkpoint and mode).
+
+The JSON is rewritten after every cell, and a sweep into an ``output_dir`` that holds one resumes
+it: cells already there (same checkpoint, inference steps, mode and latency) are kept and not
+run again, new ones are added. So an interrupted sweep continues where it stopped, and several
+calls (e.g. one per policy, each with its own ``--inference_steps``) build one table. The
+settings that make cells comparable (env, task, episode cap, scheme, seed, episodes per cell)
+must match the stored ones; otherwise the sweep refuses and names them.
 """
 
 from __future__ import annotations
@@ -41,6 +48,7 @@ import draccus
 from lerobot.configs.default import EvalConfig
 from lerobot.envs.configs import EnvConfig
 
+from lerobot_actionflow.data.staging import write_json_atomic
 from lerobot_actionflow.evaluation.latency import MODES, Scheme
 
 MEASURED = "measured"
@@ -75,16 +83,33 @@ class LatencySweepConfig:
             raise ValueError(f"latencies_ms must be finite and >= 0, got {self.latencies_ms}")
 
 
-def _cells(cfg: LatencySweepConfig, steps: list[int | None]):
+def _latency_ms(latency_s: float | None) -> float | str:
+    return MEASURED if latency_s is None else 1000.0 * latency_s
+
+
+def cell_key(row: dict) -> tuple:
+    """What identifies a cell of a sweep: ``(checkpoint, inference_steps, mode, latency_ms)``."""
+    return row["checkpoint"], row["inference_steps"], row["mode"], row["latency_ms"]
+
+
+def _cells(cfg: LatencySweepConfig, checkpoint: str, done: set[tuple]):
+    """The ``(inference_steps, mode, latency_s)`` of ``checkpoint``'s cells not in ``done``."""
     latencies = [None] if cfg.measured else [x / 1000.0 for x in cfg.latencies_ms]
-    for num_steps in steps:
+    for num_steps in cfg.inference_steps or [None]:
         for mode in cfg.modes:
             for latency_s in latencies:
-                yield num_steps, mode, latency_s
+                if (checkpoint, num_steps, mode, _latency_ms(latency_s)) not in done:
+                    yield num_steps, mode, latency_s
 
 
-def _evaluate_checkpoint(cfg: LatencySweepConfig, checkpoint: str, on_row: Callable[[dict], None]) -> None:
-    """Evaluate every cell of ``checkpoint``; ``on_row(row)`` as each is done (or skipped)."""
+def _evaluate_checkpoint(
+    cfg: LatencySweepConfig, checkpoint: str, on_row: Callable[[dict], None], done: set[tuple]
+) -> None:
+    """Evaluate every cell of ``checkpoint`` not in ``done`` (:func:`cell_key`); ``on_row(row)`` as
+    each is done (or skipped). Loads nothing when all are done."""
+    todo = list(_cells(cfg, checkpoint, done))
+    if not todo:
+        return
     import torch
     from lerobot.configs.policies import PreTrainedConfig
     from lerobot.envs.factory import make_env_pre_post_processors
@@ -111,13 +136,13 @@ def _evaluate_checkpoint(cfg: LatencySweepConfig, checkpoint: str, on_row: Calla
     scheme = Scheme(cfg.scheme_action_steps, cfg.scheme_smoothing)
     vec_env = make_latency_envs(cfg.env, cfg.eval.batch_size, cfg.eval.use_async_envs)
     try:
-        for num_steps, mode, latency_s in _cells(cfg, cfg.inference_steps or [None]):
+        for num_steps, mode, latency_s in todo:
             row = {
                 "checkpoint": checkpoint,
                 "policy": policy_cfg.type,
                 "inference_steps": num_steps,
                 "mode": mode,
-                "latency_ms": MEASURED if latency_s is None else 1000.0 * latency_s,
+                "latency_ms": _latency_ms(latency_s),
             }
             try:
                 if num_steps is not None:
@@ -225,10 +250,9 @@ def plot_success(rows: list[dict], path: Path) -> Path | None:
     return path
 
 
-def _write(cfg: LatencySweepConfig, rows: list[dict], final: bool) -> None:
-    out = Path(cfg.output_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    settings = {
+def _settings(cfg: LatencySweepConfig) -> dict:
+    """The settings that every cell of one results file shares (``complete`` added on writing)."""
+    return {
         "env_type": cfg.env.type,
         "task": getattr(cfg.env, "task", None),
         "episode_length": getattr(cfg.env, "episode_length", None),
@@ -236,20 +260,54 @@ def _write(cfg: LatencySweepConfig, rows: list[dict], final: bool) -> None:
         "scheme": asdict(Scheme(cfg.scheme_action_steps, cfg.scheme_smoothing)),
         "seed": cfg.seed,
         "n_episodes": cfg.eval.n_episodes,
-        "complete": final,
     }
-    (out / "latency_results.json").write_text(json.dumps({"settings": settings, "cells": rows}, indent=1))
+
+
+def load_previous(cfg: LatencySweepConfig) -> list[dict]:
+    """The cells of the sweep stored in ``cfg.output_dir`` (none without a file there).
+
+    Raises:
+        ValueError: the stored sweep has other settings (:func:`_settings`), or is not a sweep.
+    """
+    path = Path(cfg.output_dir) / "latency_results.json"
+    if not path.exists():
+        return []
+    try:
+        saved = json.loads(path.read_text())
+        stored, cells = saved["settings"], saved["cells"]
+    except (json.JSONDecodeError, KeyError, TypeError) as e:
+        raise ValueError(
+            f"{path} is not a latency sweep's results ({e!r}): move it or choose another --output_dir"
+        ) from e
+    mine = json.loads(json.dumps(_settings(cfg)))  # as the JSON stores them (tuples -> lists)
+    differ = {k: (stored.get(k), v) for k, v in mine.items() if stored.get(k) != v}
+    if differ:
+        said = ", ".join(f"{k}: stored {a!r}, now {b!r}" for k, (a, b) in differ.items())
+        raise ValueError(
+            f"{path} holds a sweep with other settings ({said}); resume it with its settings, "
+            "or choose another --output_dir"
+        )
+    return cells
+
+
+def _write(cfg: LatencySweepConfig, rows: list[dict], final: bool) -> None:
+    out = Path(cfg.output_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    results = {"settings": {**_settings(cfg), "complete": final}, "cells": rows}
+    write_json_atomic(out / "latency_results.json", results)  # a crash leaves the last whole file
     (out / "latency_results.md").write_text(format_tables(rows) + "\n")
     if final:
         plot_success(rows, out / "latency_success.png")
 
 
 def run_latency_sweep(cfg: LatencySweepConfig) -> list[dict]:
-    """Evaluate every cell; if ``output_dir``, writes the JSON and the markdown after each cell
-    (``settings.complete`` False until the end), then the plot."""
+    """Evaluate every cell that ``output_dir`` does not hold yet (:func:`load_previous`); if
+    ``output_dir``, writes the JSON and the markdown after each cell (``settings.complete`` False
+    until the end), then the plot. Returns all cells, the stored ones first."""
     if not cfg.checkpoints:
         raise ValueError("no checkpoints given: pass --checkpoints='[path/to/pretrained_model, ...]'")
-    rows: list[dict] = []
+    rows: list[dict] = load_previous(cfg) if cfg.output_dir is not None else []
+    done = {cell_key(r) for r in rows}
 
     def on_row(row: dict) -> None:
         rows.append(row)
@@ -258,7 +316,7 @@ def run_latency_sweep(cfg: LatencySweepConfig) -> list[dict]:
             _write(cfg, rows, final=False)
 
     for ckpt in cfg.checkpoints:
-        _evaluate_checkpoint(cfg, ckpt, on_row)
+        _evaluate_checkpoint(cfg, ckpt, on_row, done)
     if cfg.output_dir is not None:
         _write(cfg, rows, final=True)
     return rows

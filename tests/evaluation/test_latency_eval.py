@@ -12,9 +12,10 @@ from lerobot.policies.factory import make_policy, make_pre_post_processors
 from lerobot.scripts.lerobot_eval import rollout
 
 from lerobot_actionflow.envs.configuration import ActionFlowEnvConfig
+from lerobot_actionflow.evaluation import latency_sweep
 from lerobot_actionflow.evaluation.latency import ChunkLatency
 from lerobot_actionflow.evaluation.latency_hold import make_latency_envs
-from lerobot_actionflow.evaluation.latency_sweep import LatencySweepConfig, run_latency_sweep
+from lerobot_actionflow.evaluation.latency_sweep import LatencySweepConfig, load_previous, run_latency_sweep
 from lerobot_actionflow.evaluation.untrained import save_untrained_actionflow
 
 STEPS = 6  # control steps per episode
@@ -78,6 +79,50 @@ def test_latency_sweep_writes_every_cell(checkpoint, tmp_path):
     assert "100 ms" in table and "scheme" in table and "rtc" in table
     pytest.importorskip("matplotlib")
     assert (tmp_path / "latency_success.png").stat().st_size > 0
+
+
+def _sweep_config(checkpoint, out, latencies, n_episodes=1):
+    return LatencySweepConfig(
+        env=ActionFlowEnvConfig(task="Lift", episode_length=STEPS),
+        checkpoints=[str(checkpoint)],
+        latencies_ms=latencies,
+        modes=["plain"],
+        eval=EvalConfig(n_episodes=n_episodes, batch_size=1),
+        output_dir=out,
+    )
+
+
+def test_a_sweep_resumes_keeping_the_stored_cells_and_running_only_new_ones(
+    checkpoint, tmp_path, monkeypatch
+):
+    first = run_latency_sweep(_sweep_config(checkpoint, tmp_path, [0]))
+    resumed = run_latency_sweep(_sweep_config(checkpoint, tmp_path, [0, 100]))
+    assert [r["latency_ms"] for r in resumed] == [0.0, 100.0]
+    assert resumed[0] == json.loads(json.dumps(first[0]))  # kept as stored, not run again
+    saved = json.loads((tmp_path / "latency_results.json").read_text())
+    assert saved["settings"]["complete"] and len(saved["cells"]) == 2
+
+    def no_policy(*args, **kwargs):
+        raise AssertionError("a sweep with every cell stored loaded a policy")
+
+    monkeypatch.setattr("lerobot.policies.factory.make_policy", no_policy)
+    assert run_latency_sweep(_sweep_config(checkpoint, tmp_path, [100, 0])) == resumed
+    with pytest.raises(AssertionError, match="loaded a policy"):  # control: a new cell does load it
+        run_latency_sweep(_sweep_config(checkpoint, tmp_path, [200]))
+
+
+def test_a_sweep_with_other_settings_is_refused_and_the_stored_file_kept(tmp_path):
+    settings = json.loads(json.dumps(latency_sweep._settings(_sweep_config("ckpt", tmp_path, [0]))))
+    stored = {"settings": {**settings, "complete": True}, "cells": [{"checkpoint": "ckpt"}]}
+    path = tmp_path / "latency_results.json"
+    path.write_text(json.dumps(stored))
+    with pytest.raises(ValueError, match="n_episodes: stored 1, now 20"):
+        run_latency_sweep(_sweep_config("ckpt", tmp_path, [0], n_episodes=20))
+    assert json.loads(path.read_text()) == stored
+    assert load_previous(_sweep_config("ckpt", tmp_path, [0, 800])) == stored["cells"]  # control
+    path.write_text("{not json")
+    with pytest.raises(ValueError, match="is not a latency sweep's results"):
+        load_previous(_sweep_config("ckpt", tmp_path, [0]))
 
 
 def test_the_held_target_at_an_episodes_start_keeps_the_arm_still():
