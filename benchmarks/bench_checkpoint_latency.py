@@ -22,6 +22,7 @@ import argparse
 import json
 import platform
 import statistics
+import sys
 import time
 from pathlib import Path
 
@@ -63,19 +64,24 @@ def load(checkpoint: str, task: str):
 
 def time_cells(
     policies: dict, steps: list[int], warmup: int, repeats: int, solvers: dict[str, str] | None = None
-) -> dict[str, dict]:
-    """``"<name>/IS<n>"`` -> median and p90 ms of ``predict_action_chunk``, timed round-robin.
-    ``solvers``: name -> ODE solver replacing the checkpoint's; a midpoint policy skips odd IS."""
+) -> tuple[dict[str, dict], dict[str, str]]:
+    """``"<name>/IS<n>"`` -> median and p90 ms of ``predict_action_chunk``, timed round-robin, and
+    ``"<name>/IS<n>"`` -> why a cell is not a cell of that policy (e.g. an odd IS with midpoint
+    steps). ``solvers``: name -> ODE solver replacing a flow checkpoint's (LeRobot's ``diffusion``
+    has none: its IS sets DDIM, or DDPM at its trained steps)."""
     from lerobot_actionflow.evaluation.sweep import set_inference_steps
 
-    solvers = dict(solvers or {})
-    cells = []
+    solvers = {
+        name: (solvers or {}).get(name, getattr(p.config, "solver", None))
+        for name, (p, _) in policies.items()
+    }
+    cells, skipped = [], {}
     for name, (policy, _) in policies.items():
-        solvers.setdefault(name, getattr(policy.config, "solver", "euler"))
         for n in steps:
-            try:  # e.g. an odd IS with midpoint steps: not a cell of this policy
+            try:
                 set_inference_steps(policy, n, solver=solvers[name])
-            except ValueError:
+            except ValueError as e:
+                skipped[f"{name}/IS{n}"] = str(e)
                 continue
             cells.append((name, n))
     times: dict[tuple[str, int], list[float]] = {c: [] for c in cells}
@@ -97,7 +103,7 @@ def time_cells(
             if len(ts) > 1
             else ts[0],
         }
-    return out
+    return out, skipped
 
 
 def main(argv: list[str] | None = None) -> dict:
@@ -145,10 +151,16 @@ def main(argv: list[str] | None = None) -> dict:
         "repeats": args.repeats,
         "warmup": args.warmup,
         "midpoint": args.midpoint,
-        "latency_batch1": time_cells(
-            policies, args.inference_steps, args.warmup, args.repeats, {n: "midpoint" for n in args.midpoint}
-        ),
     }
+    timed, skipped = time_cells(
+        policies, args.inference_steps, args.warmup, args.repeats, {n: "midpoint" for n in args.midpoint}
+    )
+    untimed = [name for name in named if not any(cell.startswith(f"{name}/") for cell in timed)]
+    if untimed:
+        raise SystemExit(f"no IS of {args.inference_steps} could be set for {untimed}: {skipped}")
+    report["latency_batch1"], report["skipped"] = timed, skipped
+    for cell, why in skipped.items():
+        print(f"skipped {cell}: {why}", file=sys.stderr)
     text = json.dumps(report, indent=2)
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)

@@ -1,5 +1,6 @@
 """benchmarks/bench_checkpoint_latency.py: every (checkpoint, IS) cell is timed with IS network
-calls per chunk, and a bad checkpoint argument is refused by name."""
+calls per chunk, flow policies and LeRobot's diffusion alike; a cell a policy cannot run is named
+with its reason, and a bad checkpoint argument is refused by name."""
 
 import sys
 from pathlib import Path
@@ -24,16 +25,42 @@ class CountingPolicy:
         self.steps_per_chunk.append(self.config.num_inference_steps)
 
 
+class CountingDiffusion:
+    """Stands in for LeRobot's diffusion: records the scheduler and steps of each chunk."""
+
+    def __init__(self, trained_steps: int):
+        from diffusers import DDPMScheduler
+
+        self.config = SimpleNamespace(type="diffusion")
+        self.diffusion = SimpleNamespace(
+            noise_scheduler=DDPMScheduler(num_train_timesteps=trained_steps), num_inference_steps=None
+        )
+        self.chunks: list[tuple[str, int]] = []
+
+    def predict_action_chunk(self, batch):
+        model = self.diffusion
+        self.chunks.append((type(model.noise_scheduler).__name__, model.num_inference_steps))
+
+
 def test_each_cell_runs_its_own_number_of_network_calls():
     euler, midpoint = CountingPolicy("euler"), CountingPolicy("midpoint")
-    cells = bench.time_cells({"e": (euler, {}), "m": (midpoint, {})}, [2, 4], warmup=1, repeats=3)
-    assert sorted(cells) == ["e/IS2", "e/IS4", "m/IS2", "m/IS4"]
+    cells, skipped = bench.time_cells({"e": (euler, {}), "m": (midpoint, {})}, [2, 4], warmup=1, repeats=3)
+    assert sorted(cells) == ["e/IS2", "e/IS4", "m/IS2", "m/IS4"] and skipped == {}
     assert all(c["median_ms"] >= 0 and c["p90_ms"] >= c["median_ms"] for c in cells.values())
     assert euler.steps_per_chunk == [2, 4] * 4  # round-robin, warmup included
     assert midpoint.steps_per_chunk == [1, 2] * 4  # two calls per midpoint step
     override = CountingPolicy("euler")
-    assert sorted(bench.time_cells({"o": (override, {})}, [1, 2], 0, 1, {"o": "midpoint"})) == ["o/IS2"]
+    cells, skipped = bench.time_cells({"o": (override, {})}, [1, 2], 0, 1, {"o": "midpoint"})
+    assert sorted(cells) == ["o/IS2"] and "use a multiple of 2" in skipped["o/IS1"]
     assert override.steps_per_chunk == [1]  # odd IS skipped: a midpoint step makes two calls
+
+
+def test_diffusion_is_timed_with_ddim_and_with_ddpm_at_its_trained_steps():
+    diffusion, flow = CountingDiffusion(trained_steps=10), CountingPolicy("euler")
+    cells, skipped = bench.time_cells({"d": (diffusion, {}), "f": (flow, {})}, [2, 10, 20], 0, 1)
+    assert sorted(cells) == ["d/IS10", "d/IS2", "f/IS10", "f/IS2", "f/IS20"]
+    assert diffusion.chunks == [("DDIMScheduler", 2), ("DDPMScheduler", 10)]
+    assert list(skipped) == ["d/IS20"] and "trained with 10 steps" in skipped["d/IS20"]
 
 
 def test_a_checkpoint_without_a_name_or_directory_is_refused(tmp_path):
