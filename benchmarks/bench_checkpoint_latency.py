@@ -3,7 +3,8 @@
 The latency column of the few-step study (issue #21): for each checkpoint and each IS, the
 median wall time of one ``policy.predict_action_chunk`` on a real observation of the task (one
 ``reset`` of the LeRobot env, through LeRobot's env and policy preprocessors, already on the
-device), with IS network calls set as the sweep sets them
+device; the policy's observation history filled by one ``select_action``, as at an episode's first
+step), with IS network calls set as the sweep sets them
 (:func:`lerobot_actionflow.evaluation.sweep.set_inference_steps`, so a midpoint checkpoint makes
 ``IS / 2`` steps). Checkpoints and IS are timed round-robin, one call of each in turn, so that
 all see the same machine load; the ratios between cells are the robust figure on a shared
@@ -59,6 +60,8 @@ def load(checkpoint: str, task: str):
     finally:
         close_envs(envs)
     policy.reset()
+    with torch.inference_mode():  # fills the observation history as at an episode's first step;
+        policy.select_action(batch)  # LeRobot's diffusion predicts from its stacked history
     return policy, batch
 
 
