@@ -23,7 +23,9 @@ Usage::
 
 Writes ``<output_dir>/latency_results.json`` (every cell, with its per-episode records),
 ``latency_results.md`` (success and smoothness tables) and, if matplotlib is installed,
-``latency_success.png`` (success against latency, one line per checkpoint and mode).
+``latency_success.png`` (success against latency, one line per checkpoint and mode). With
+``--real_latency=<bench_checkpoint_latency.py --json report>`` they also give each series'
+success at its own measured latency (:mod:`lerobot_actionflow.evaluation.real_latency`).
 
 The JSON is rewritten after every cell, and a sweep into an ``output_dir`` that holds one resumes
 it: cells already there (same checkpoint, inference steps, mode and latency) are kept and not
@@ -50,6 +52,7 @@ from lerobot.envs.configs import EnvConfig
 
 from lerobot_actionflow.data.staging import write_json_atomic
 from lerobot_actionflow.evaluation.latency import MODES, Scheme
+from lerobot_actionflow.evaluation.real_latency import at_real_latency, format_real_latency, load_real_latency
 
 MEASURED = "measured"
 
@@ -70,6 +73,9 @@ class LatencySweepConfig:
     scheme_smoothing: float = 0.5
     # Use the measured wall-clock time of each inference instead of `latencies_ms`.
     measured: bool = False
+    # A `bench_checkpoint_latency.py --json` report of these checkpoints: adds each series'
+    # success at its own measured latency (`real_latency.at_real_latency`) to the outputs.
+    real_latency: Path | None = None
     eval: EvalConfig = field(default_factory=lambda: EvalConfig(n_episodes=50, batch_size=10))
     seed: int = 1000
     device: str | None = None
@@ -220,8 +226,10 @@ def format_tables(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def plot_success(rows: list[dict], path: Path) -> Path | None:
-    """Success against injected latency, one line per series; None without matplotlib."""
+def plot_success(rows: list[dict], path: Path, at_real: list[dict] = ()) -> Path | None:
+    """Success against injected latency, one line per series, and a star per ``at_real`` entry
+    (:func:`~lerobot_actionflow.evaluation.real_latency.at_real_latency`) at the series' measured
+    latency; None without matplotlib."""
     try:
         import matplotlib
 
@@ -236,10 +244,16 @@ def plot_success(rows: list[dict], path: Path) -> Path | None:
     if not series:
         return None
     fig, ax = plt.subplots(figsize=(7, 4.5))
+    colours = {}
     for name, pts in series.items():
         pts.sort()
-        ax.plot([p[0] for p in pts], [p[1] for p in pts], marker="o", label=name)
-    ax.set_xlabel("injected inference latency (ms)")
+        (line,) = ax.plot([p[0] for p in pts], [p[1] for p in pts], marker="o", label=name)
+        colours[name] = line.get_color()
+    for e in at_real:
+        if e["success_at_real"] is not None:
+            colour = colours.get(_series(e))
+            ax.plot(e["real_ms"], e["success_at_real"], marker="*", markersize=14, color=colour, mec="k")
+    ax.set_xlabel("injected inference latency (ms); stars: each series at its measured latency")
     ax.set_ylabel("success (%)")
     ax.set_ylim(-2, 102)
     ax.grid(alpha=0.3)
@@ -290,14 +304,24 @@ def load_previous(cfg: LatencySweepConfig) -> list[dict]:
     return cells
 
 
-def _write(cfg: LatencySweepConfig, rows: list[dict], final: bool) -> None:
+def report_text(rows: list[dict], at_real: list[dict] | None = None) -> str:
+    """:func:`format_tables`, then each series at its own latency where ``at_real`` is given."""
+    text = format_tables(rows)
+    return text if at_real is None else text + "\n\n" + format_real_latency(at_real, _series)
+
+
+def _write(cfg: LatencySweepConfig, rows: list[dict], final: bool, real: dict | None = None) -> None:
     out = Path(cfg.output_dir)
     out.mkdir(parents=True, exist_ok=True)
     results = {"settings": {**_settings(cfg), "complete": final}, "cells": rows}
+    at_real = None if real is None else at_real_latency(rows, real, 1.0 / cfg.env.fps)
+    if at_real is not None:
+        results["at_real_latency"] = at_real
+    text = report_text(rows, at_real)
     write_json_atomic(out / "latency_results.json", results)  # a crash leaves the last whole file
-    (out / "latency_results.md").write_text(format_tables(rows) + "\n")
+    (out / "latency_results.md").write_text(text + "\n")
     if final:
-        plot_success(rows, out / "latency_success.png")
+        plot_success(rows, out / "latency_success.png", at_real or [])
 
 
 def run_latency_sweep(cfg: LatencySweepConfig) -> list[dict]:
@@ -306,6 +330,7 @@ def run_latency_sweep(cfg: LatencySweepConfig) -> list[dict]:
     until the end), then the plot. Returns all cells, the stored ones first."""
     if not cfg.checkpoints:
         raise ValueError("no checkpoints given: pass --checkpoints='[path/to/pretrained_model, ...]'")
+    real = None if cfg.real_latency is None else load_real_latency(cfg.real_latency)
     rows: list[dict] = load_previous(cfg) if cfg.output_dir is not None else []
     done = {cell_key(r) for r in rows}
 
@@ -313,12 +338,12 @@ def run_latency_sweep(cfg: LatencySweepConfig) -> list[dict]:
         rows.append(row)
         logging.info("latency sweep: %s", {k: v for k, v in row.items() if k != "episodes"})
         if cfg.output_dir is not None:
-            _write(cfg, rows, final=False)
+            _write(cfg, rows, final=False, real=real)
 
     for ckpt in cfg.checkpoints:
         _evaluate_checkpoint(cfg, ckpt, on_row, done)
     if cfg.output_dir is not None:
-        _write(cfg, rows, final=True)
+        _write(cfg, rows, final=True, real=real)
     return rows
 
 
@@ -330,7 +355,8 @@ def main(argv: list[str] | None = None) -> list[dict]:
     register_third_party_plugins()  # our policy and env types, like lerobot-eval
     cfg = draccus.parse(LatencySweepConfig, args=sys.argv[1:] if argv is None else argv)
     rows = run_latency_sweep(cfg)
-    print(format_tables(rows))
+    real = None if cfg.real_latency is None else load_real_latency(cfg.real_latency)
+    print(report_text(rows, None if real is None else at_real_latency(rows, real, 1.0 / cfg.env.fps)))
     return rows
 
 
