@@ -29,20 +29,24 @@ success at its own measured latency (:mod:`lerobot_actionflow.evaluation.real_la
 
 The JSON is rewritten after every cell, and a sweep into an ``output_dir`` that holds one resumes
 it: cells already there (same checkpoint, inference steps, mode and latency) are kept and not
-run again, new ones are added. So an interrupted sweep continues where it stopped, and several
-calls (e.g. one per policy, each with its own ``--inference_steps``) build one table. The
-settings that make cells comparable (env, task, episode cap, scheme, seed, episodes per cell)
-must match the stored ones; otherwise the sweep refuses and names them.
+run again, new ones are added (skipped cells are tried again). So an interrupted sweep continues
+where it stopped, and several calls, one after the other (e.g. one per policy, each with its own
+``--inference_steps``), build one table. A checkpoint is its resolved path: a ``last`` link is
+recorded as the step it points to. The settings that make cells comparable (the env's config,
+scheme, seed, episodes per cell, env batch, device) must match the stored ones; otherwise the
+sweep refuses and names them. A second sweep into a folder that one is writing is refused.
 """
 
 from __future__ import annotations
 
+import fcntl
 import json
 import logging
 import math
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -55,6 +59,11 @@ from lerobot_actionflow.evaluation.latency import MODES, Scheme
 from lerobot_actionflow.evaluation.real_latency import at_real_latency, format_real_latency, load_real_latency
 
 MEASURED = "measured"
+#: Env config fields that change only what is displayed or derived, not a cell's outcome.
+ENV_DISPLAY_FIELDS = (
+    "features", "features_map", "render_mode", "render_camera", "visualization_height",
+    "visualization_width", "max_parallel_tasks", "disable_env_checker",
+)  # fmt: skip
 
 
 @dataclass
@@ -87,6 +96,17 @@ class LatencySweepConfig:
             raise ValueError(f"unknown modes {bad}; choose among {MODES}")
         if any(not math.isfinite(x) or x < 0 for x in self.latencies_ms):
             raise ValueError(f"latencies_ms must be finite and >= 0, got {self.latencies_ms}")
+        # A checkpoint is its resolved path (a `last` link names the step it points to now), and
+        # an entry given twice is one cell.
+        self.checkpoints = list(dict.fromkeys(str(Path(c).resolve()) for c in self.checkpoints))
+        self.latencies_ms = list(dict.fromkeys(float(x) for x in self.latencies_ms))
+        self.modes = list(dict.fromkeys(self.modes))
+        self.inference_steps = list(dict.fromkeys(self.inference_steps))
+
+
+def control_period_s(cfg: LatencySweepConfig) -> float:
+    """Seconds per control step of the swept env."""
+    return 1.0 / cfg.env.fps
 
 
 def _latency_ms(latency_s: float | None) -> float | str:
@@ -137,7 +157,7 @@ def _evaluate_checkpoint(
         preprocessor_overrides={"device_processor": {"device": str(policy.config.device)}},
     )
     env_pre, env_post = make_env_pre_post_processors(env_cfg=cfg.env, policy_cfg=policy_cfg)
-    period = 1.0 / cfg.env.fps
+    period = control_period_s(cfg)
     trained_m = policy.config.n_action_steps
     scheme = Scheme(cfg.scheme_action_steps, cfg.scheme_smoothing)
     vec_env = make_latency_envs(cfg.env, cfg.eval.batch_size, cfg.eval.use_async_envs)
@@ -265,43 +285,70 @@ def plot_success(rows: list[dict], path: Path, at_real: list[dict] = ()) -> Path
 
 
 def _settings(cfg: LatencySweepConfig) -> dict:
-    """The settings that every cell of one results file shares (``complete`` added on writing)."""
+    """What makes the cells of one results file comparable (``complete`` is added on writing): the
+    env's config (less :data:`ENV_DISPLAY_FIELDS`), the scheme, seed, episodes, env batch and
+    device (the policy's noise is drawn per batch)."""
+    env = {k: v for k, v in draccus.encode(cfg.env).items() if k not in ENV_DISPLAY_FIELDS}
     return {
         "env_type": cfg.env.type,
-        "task": getattr(cfg.env, "task", None),
-        "episode_length": getattr(cfg.env, "episode_length", None),
-        "control_period_s": 1.0 / cfg.env.fps,
+        "env": env,
+        "control_period_s": control_period_s(cfg),
         "scheme": asdict(Scheme(cfg.scheme_action_steps, cfg.scheme_smoothing)),
         "seed": cfg.seed,
         "n_episodes": cfg.eval.n_episodes,
+        "batch_size": cfg.eval.batch_size,
+        "device": cfg.device,
     }
 
 
-def load_previous(cfg: LatencySweepConfig) -> list[dict]:
-    """The cells of the sweep stored in ``cfg.output_dir`` (none without a file there).
+def _results_path(cfg: LatencySweepConfig) -> Path:
+    return Path(cfg.output_dir) / "latency_results.json"
 
-    Raises:
-        ValueError: the stored sweep has other settings (:func:`_settings`), or is not a sweep.
-    """
-    path = Path(cfg.output_dir) / "latency_results.json"
+
+def _load_results(cfg: LatencySweepConfig) -> dict | None:
+    path = _results_path(cfg)
     if not path.exists():
-        return []
+        return None
     try:
         saved = json.loads(path.read_text())
-        stored, cells = saved["settings"], saved["cells"]
+        if not isinstance(saved["settings"], dict) or not isinstance(saved["cells"], list):
+            raise TypeError("settings must be an object and cells a list")
     except (json.JSONDecodeError, KeyError, TypeError) as e:
         raise ValueError(
             f"{path} is not a latency sweep's results ({e!r}): move it or choose another --output_dir"
         ) from e
+    return saved
+
+
+def load_previous(cfg: LatencySweepConfig) -> list[dict]:
+    """The evaluated cells of the sweep stored in ``cfg.output_dir`` (none without a file there);
+    skipped cells are left out, so that they are tried again.
+
+    Raises:
+        ValueError: the stored sweep has other settings (:func:`_settings`), or is not a sweep.
+    """
+    saved = _load_results(cfg)
+    if saved is None:
+        return []
+    stored = saved["settings"]
     mine = json.loads(json.dumps(_settings(cfg)))  # as the JSON stores them (tuples -> lists)
     differ = {k: (stored.get(k), v) for k, v in mine.items() if stored.get(k) != v}
     if differ:
         said = ", ".join(f"{k}: stored {a!r}, now {b!r}" for k, (a, b) in differ.items())
         raise ValueError(
-            f"{path} holds a sweep with other settings ({said}); resume it with its settings, "
-            "or choose another --output_dir"
+            f"{_results_path(cfg)} holds a sweep with other settings ({said}); resume it with its "
+            "settings, or choose another --output_dir"
         )
-    return cells
+    return [c for c in saved["cells"] if "skipped" not in c]
+
+
+def real_latency_report(cfg: LatencySweepConfig) -> Path | None:
+    """``--real_latency``, else the report an earlier call on ``output_dir`` joined."""
+    if cfg.real_latency is not None or cfg.output_dir is None:
+        return cfg.real_latency
+    saved = _load_results(cfg)
+    stored = None if saved is None else saved.get("real_latency")
+    return None if stored is None else Path(stored)
 
 
 def report_text(rows: list[dict], at_real: list[dict] | None = None) -> str:
@@ -310,14 +357,38 @@ def report_text(rows: list[dict], at_real: list[dict] | None = None) -> str:
     return text if at_real is None else text + "\n\n" + format_real_latency(at_real, _series)
 
 
-def _write(cfg: LatencySweepConfig, rows: list[dict], final: bool, real: dict | None = None) -> None:
-    out = Path(cfg.output_dir)
+def sweep_report(cfg: LatencySweepConfig, rows: list[dict]) -> tuple[list[dict] | None, str]:
+    """The join with the real latencies (:func:`real_latency_report`; None without one) and the
+    Markdown of ``rows``."""
+    report = real_latency_report(cfg)
+    at_real = (
+        None if report is None else at_real_latency(rows, load_real_latency(report), control_period_s(cfg))
+    )
+    return at_real, report_text(rows, at_real)
+
+
+@contextmanager
+def _exclusive(out: Path) -> Iterator[None]:
+    """Hold ``out``'s sweep lock: a second sweep into the same folder would overwrite this one's
+    cells with its own, so it is refused."""
     out.mkdir(parents=True, exist_ok=True)
+    with open(out / ".latency_sweep.lock", "w") as lock:
+        try:
+            fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise ValueError(
+                f"another latency sweep is writing {out}: wait for it to end, or choose another --output_dir"
+            ) from None
+        yield
+
+
+def _write(cfg: LatencySweepConfig, rows: list[dict], final: bool) -> None:
+    out = Path(cfg.output_dir)
     results = {"settings": {**_settings(cfg), "complete": final}, "cells": rows}
-    at_real = None if real is None else at_real_latency(rows, real, 1.0 / cfg.env.fps)
+    at_real, text = sweep_report(cfg, rows)
     if at_real is not None:
+        results["real_latency"] = str(Path(real_latency_report(cfg)).resolve())
         results["at_real_latency"] = at_real
-    text = report_text(rows, at_real)
     write_json_atomic(out / "latency_results.json", results)  # a crash leaves the last whole file
     (out / "latency_results.md").write_text(text + "\n")
     if final:
@@ -330,20 +401,27 @@ def run_latency_sweep(cfg: LatencySweepConfig) -> list[dict]:
     until the end), then the plot. Returns all cells, the stored ones first."""
     if not cfg.checkpoints:
         raise ValueError("no checkpoints given: pass --checkpoints='[path/to/pretrained_model, ...]'")
-    real = None if cfg.real_latency is None else load_real_latency(cfg.real_latency)
-    rows: list[dict] = load_previous(cfg) if cfg.output_dir is not None else []
+    if cfg.output_dir is None:
+        return _run(cfg, [])
+    with _exclusive(Path(cfg.output_dir)):
+        return _run(cfg, load_previous(cfg))
+
+
+def _run(cfg: LatencySweepConfig, rows: list[dict]) -> list[dict]:
+    if cfg.real_latency is not None:
+        load_real_latency(cfg.real_latency)  # a bad report fails before any evaluation
     done = {cell_key(r) for r in rows}
 
     def on_row(row: dict) -> None:
         rows.append(row)
         logging.info("latency sweep: %s", {k: v for k, v in row.items() if k != "episodes"})
         if cfg.output_dir is not None:
-            _write(cfg, rows, final=False, real=real)
+            _write(cfg, rows, final=False)
 
     for ckpt in cfg.checkpoints:
         _evaluate_checkpoint(cfg, ckpt, on_row, done)
     if cfg.output_dir is not None:
-        _write(cfg, rows, final=True, real=real)
+        _write(cfg, rows, final=True)
     return rows
 
 
@@ -355,8 +433,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
     register_third_party_plugins()  # our policy and env types, like lerobot-eval
     cfg = draccus.parse(LatencySweepConfig, args=sys.argv[1:] if argv is None else argv)
     rows = run_latency_sweep(cfg)
-    real = None if cfg.real_latency is None else load_real_latency(cfg.real_latency)
-    print(report_text(rows, None if real is None else at_real_latency(rows, real, 1.0 / cfg.env.fps)))
+    print(sweep_report(cfg, rows)[1])
     return rows
 
 

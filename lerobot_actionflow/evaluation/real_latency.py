@@ -4,10 +4,10 @@ A latency sweep (:mod:`lerobot_actionflow.evaluation.latency_sweep`) injects lat
 env sees only the held steps ``k = ceil(L / dt)`` (:func:`~lerobot_actionflow.evaluation.latency.
 hold_steps`), so every ``L`` with the same ``k`` gives the same cell. A policy's *real* latency is
 the median batch-1 chunk time that ``benchmarks/bench_checkpoint_latency.py --json`` measures per
-checkpoint and IS. For each series of the sweep (checkpoint, K/IS, mode) with a measured latency,
-:func:`at_real_latency` finds the cell whose held steps equal the real latency's, so "success at
-its real latency" is read from an evaluated cell, never interpolated; a series whose ``k`` was not
-swept says so (sweep one latency with that ``k`` to add it).
+checkpoint and IS, for a plain chunk (:data:`TIMED_MODES`). For each such series of the sweep
+(checkpoint, K/IS, mode), :func:`at_real_latency` finds the cell whose held steps equal the real
+latency's, so "success at its real latency" is read from an evaluated cell, never interpolated;
+a series whose ``k`` was not swept, or that the report does not time, says so.
 """
 
 from __future__ import annotations
@@ -40,34 +40,48 @@ def load_real_latency(path: Path) -> dict[tuple[str, int], float]:
     return out
 
 
+#: Modes whose chunk costs what the benchmark times (one plain ``predict_action_chunk``); the
+#: guided sampling of ``rtc`` costs more and is not timed by it.
+TIMED_MODES = ("plain", "scheme")
+
+
 def at_real_latency(
     rows: list[dict], real: dict[tuple[str, int], float], control_period_s: float
 ) -> list[dict]:
-    """Per series of ``rows`` (injected-latency cells, not skipped) with a real latency in ``real``:
-    its ``real_ms``, the ``held_steps`` that latency means, the success with no latency
-    (``success_at_0``, None if not swept) and at those held steps (``success_at_real`` and the
-    ``cell_latency_ms`` it was read from, None if no cell has them)."""
+    """Per series of ``rows`` (injected-latency cells, not skipped, of :data:`TIMED_MODES`): its
+    ``real_ms`` (None, with ``why``, if the report has no figure for it), the ``held_steps`` that
+    latency means, the success with no latency (``success_at_0``, None if not swept) and at those
+    held steps (``success_at_real`` and the ``cell_latency_ms`` it was read from, None if no cell
+    has them)."""
     series: dict[tuple, dict[int, dict]] = {}
     for r in rows:
-        if "skipped" in r or isinstance(r["latency_ms"], str) or r["inference_steps"] is None:
+        if "skipped" in r or isinstance(r["latency_ms"], str) or r["mode"] not in TIMED_MODES:
             continue
         key = (r["checkpoint"], r["inference_steps"], r["mode"])
         k = hold_steps(r["latency_ms"] / 1000.0, control_period_s)
         series.setdefault(key, {}).setdefault(k, r)  # equal k: the same cell
     out = []
     for (checkpoint, steps, mode), by_hold in series.items():
-        real_ms = real.get((str(Path(checkpoint).resolve()), steps))
-        if real_ms is None:
-            continue
-        k = hold_steps(real_ms / 1000.0, control_period_s)
-        cell, zero = by_hold.get(k), by_hold.get(0)
-        out.append({
+        entry = {
             "checkpoint": checkpoint, "policy": next(iter(by_hold.values()))["policy"],
-            "inference_steps": steps, "mode": mode, "real_ms": real_ms, "held_steps": k,
-            "success_at_0": None if zero is None else zero["pc_success"],
-            "success_at_real": None if cell is None else cell["pc_success"],
-            "cell_latency_ms": None if cell is None else cell["latency_ms"],
-        })  # fmt: skip
+            "inference_steps": steps, "mode": mode, "real_ms": None, "held_steps": None,
+            "success_at_0": None if 0 not in by_hold else by_hold[0]["pc_success"],
+            "success_at_real": None, "cell_latency_ms": None,
+        }  # fmt: skip
+        real_ms = None if steps is None else real.get((str(Path(checkpoint).resolve()), steps))
+        if real_ms is None:
+            entry["why"] = (
+                "swept at the checkpoint's own K/IS: give --inference_steps"
+                if steps is None
+                else "not in the latency report"
+            )
+        else:
+            k = hold_steps(real_ms / 1000.0, control_period_s)
+            cell = by_hold.get(k)
+            entry.update(real_ms=real_ms, held_steps=k)
+            if cell is not None:
+                entry.update(success_at_real=cell["pc_success"], cell_latency_ms=cell["latency_ms"])
+        out.append(entry)
     return out
 
 
@@ -81,6 +95,9 @@ def format_real_latency(entries: list[dict], series_name: Callable[[dict], str])
     ]
     for e in entries:
         at_0 = "-" if e["success_at_0"] is None else f"{e['success_at_0']:.0f}"
+        if e["real_ms"] is None:
+            lines.append(f"| {series_name(e)} | - | - | {at_0} | {e['why']} |")
+            continue
         at_real = (
             f"not swept (add a latency with {e['held_steps']} held steps)"
             if e["success_at_real"] is None

@@ -81,9 +81,9 @@ def test_latency_sweep_writes_every_cell(checkpoint, tmp_path):
     assert (tmp_path / "latency_success.png").stat().st_size > 0
 
 
-def _sweep_config(checkpoint, out, latencies, n_episodes=1):
+def _sweep_config(checkpoint, out, latencies, n_episodes=1, **env):
     return LatencySweepConfig(
-        env=ActionFlowEnvConfig(task="Lift", episode_length=STEPS),
+        env=ActionFlowEnvConfig(task="Lift", episode_length=STEPS, **env),
         checkpoints=[str(checkpoint)],
         latencies_ms=latencies,
         modes=["plain"],
@@ -107,6 +107,9 @@ def test_a_sweep_resumes_keeping_the_stored_cells_and_running_only_new_ones(
 
     monkeypatch.setattr("lerobot.policies.factory.make_policy", no_policy)
     assert run_latency_sweep(_sweep_config(checkpoint, tmp_path, [100, 0])) == resumed
+    # the same checkpoint typed otherwise, and a latency given twice
+    same = f"{checkpoint.parent}/../{checkpoint.parent.name}/{checkpoint.name}/"
+    assert run_latency_sweep(_sweep_config(same, tmp_path, [100, 100.0, 0])) == resumed
     with pytest.raises(AssertionError, match="loaded a policy"):  # control: a new cell does load it
         run_latency_sweep(_sweep_config(checkpoint, tmp_path, [200]))
 
@@ -118,6 +121,13 @@ def test_a_sweep_with_other_settings_is_refused_and_the_stored_file_kept(tmp_pat
     path.write_text(json.dumps(stored))
     with pytest.raises(ValueError, match="n_episodes: stored 1, now 20"):
         run_latency_sweep(_sweep_config("ckpt", tmp_path, [0], n_episodes=20))
+    with pytest.raises(
+        ValueError, match=r"env: stored .*'scene_yaw': \[0\.0, 0\.0\].*'scene_yaw': \[-0\.5, 0\.5\]"
+    ):
+        run_latency_sweep(_sweep_config("ckpt", tmp_path, [0], scene_yaw=(-0.5, 0.5)))
+    with latency_sweep._exclusive(tmp_path):  # another sweep is writing this folder
+        with pytest.raises(ValueError, match="another latency sweep is writing"):
+            run_latency_sweep(_sweep_config("ckpt", tmp_path, [0]))
     assert json.loads(path.read_text()) == stored
     assert load_previous(_sweep_config("ckpt", tmp_path, [0, 800])) == stored["cells"]  # control
     path.write_text("{not json")

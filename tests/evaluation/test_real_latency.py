@@ -55,6 +55,15 @@ def test_a_series_is_read_at_the_cell_with_its_real_latencys_held_steps(tmp_path
         if e["checkpoint"] == slow
     ]
     assert (e["success_at_real"], e["cell_latency_ms"]) == (61.0, 150.0)  # control: now it is
+    own, absent = _row(slow, None, 0.0, 50.0), _row(str(tmp_path / "other"), 2, 0.0, 70.0)
+    rtc = _row(fast, 2, 50.0, 80.0, mode="rtc")  # its guided chunk is not what the report times
+    extra = {
+        (e["checkpoint"], e["inference_steps"], e["mode"]): e
+        for e in at_real_latency([own, absent, rtc], real, PERIOD)
+    }
+    assert set(extra) == {(slow, None, "plain"), (str(tmp_path / "other"), 2, "plain")}
+    assert "give --inference_steps" in extra[slow, None, "plain"]["why"]
+    assert extra[str(tmp_path / "other"), 2, "plain"]["why"] == "not in the latency report"
     text = latency_sweep.report_text(rows, at_real_latency(rows, real, PERIOD))
     assert "| 131.7 | 3 | 95 | not swept (add a latency with 3 held steps) |" in text
     assert "| 9.3 | 1 | 90 | 88 (50 ms) |" in text
