@@ -30,6 +30,7 @@ from pathlib import Path
 import torch
 
 from lerobot_actionflow.registry import register_all
+from lerobot_actionflow.schema import ACTION_KEY
 
 
 def load(checkpoint: str, task: str):
@@ -59,10 +60,19 @@ def load(checkpoint: str, task: str):
         batch = preprocessor(env_pre(preprocess_observation(obs)))
     finally:
         close_envs(envs)
+    return policy, fill_history(policy, batch)
+
+
+def fill_history(policy, batch: dict) -> dict:
+    """``reset``, then one ``select_action`` on ``batch``, as at an episode's first step: this fills
+    the policy's observation history, from which LeRobot's diffusion predicts. Returns ``batch``
+    with every key the policy keeps a history of (diffusion's ``observation.images``, its stacked
+    cameras, too), so that ``predict_action_chunk(batch)`` reads all of them."""
     policy.reset()
-    with torch.inference_mode():  # fills the observation history as at an episode's first step;
-        policy.select_action(batch)  # LeRobot's diffusion predicts from its stacked history
-    return policy, batch
+    with torch.inference_mode():
+        policy.select_action(batch)
+    history = getattr(policy, "_queues", None) or {}
+    return {**batch, **{k: q[-1] for k, q in history.items() if k not in batch and k != ACTION_KEY and q}}
 
 
 def time_cells(
@@ -70,8 +80,9 @@ def time_cells(
 ) -> tuple[dict[str, dict], dict[str, str]]:
     """``"<name>/IS<n>"`` -> median and p90 ms of ``predict_action_chunk``, timed round-robin, and
     ``"<name>/IS<n>"`` -> why a cell is not a cell of that policy (e.g. an odd IS with midpoint
-    steps). ``solvers``: name -> ODE solver replacing a flow checkpoint's (LeRobot's ``diffusion``
-    has none: its IS sets DDIM, or DDPM at its trained steps)."""
+    steps); a policy with no cell at all is an error (ValueError), raised before any timing.
+    ``solvers``: name -> ODE solver replacing a flow checkpoint's (LeRobot's ``diffusion`` has
+    none: its IS sets DDIM, or DDPM at its trained steps)."""
     from lerobot_actionflow.evaluation.sweep import set_inference_steps
 
     solvers = {
@@ -87,6 +98,9 @@ def time_cells(
                 skipped[f"{name}/IS{n}"] = str(e)
                 continue
             cells.append((name, n))
+    untimed = [name for name in policies if all(cell_name != name for cell_name, _ in cells)]
+    if untimed:
+        raise ValueError(f"no IS of {steps} can be set for {untimed}: {skipped}")
     times: dict[tuple[str, int], list[float]] = {c: [] for c in cells}
     with torch.inference_mode():
         for i in range(warmup + repeats):
@@ -136,7 +150,7 @@ def main(argv: list[str] | None = None) -> dict:
             raise SystemExit(f"--checkpoints {item!r}: expected NAME=<existing pretrained_model directory>")
         if name in named:
             raise SystemExit(f"--checkpoints: the name {name!r} is given twice")
-        named[name] = path
+        named[name] = str(Path(path).resolve())  # as latency_sweep.py --real_latency matches them
     if set(args.midpoint) - set(named):
         raise SystemExit(
             f"--midpoint {sorted(set(args.midpoint) - set(named))}: not among the --checkpoints names"
@@ -155,12 +169,12 @@ def main(argv: list[str] | None = None) -> dict:
         "warmup": args.warmup,
         "midpoint": args.midpoint,
     }
-    timed, skipped = time_cells(
-        policies, args.inference_steps, args.warmup, args.repeats, {n: "midpoint" for n in args.midpoint}
-    )
-    untimed = [name for name in named if not any(cell.startswith(f"{name}/") for cell in timed)]
-    if untimed:
-        raise SystemExit(f"no IS of {args.inference_steps} could be set for {untimed}: {skipped}")
+    try:
+        timed, skipped = time_cells(
+            policies, args.inference_steps, args.warmup, args.repeats, {n: "midpoint" for n in args.midpoint}
+        )
+    except ValueError as e:
+        raise SystemExit(str(e)) from None
     report["latency_batch1"], report["skipped"] = timed, skipped
     for cell, why in skipped.items():
         print(f"skipped {cell}: {why}", file=sys.stderr)

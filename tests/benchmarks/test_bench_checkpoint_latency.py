@@ -61,6 +61,33 @@ def test_diffusion_is_timed_with_ddim_and_with_ddpm_at_its_trained_steps():
     assert sorted(cells) == ["d/IS10", "d/IS2", "f/IS10", "f/IS2", "f/IS20"]
     assert diffusion.chunks == [("DDIMScheduler", 2), ("DDPMScheduler", 10)]
     assert list(skipped) == ["d/IS20"] and "trained with 10 steps" in skipped["d/IS20"]
+    with pytest.raises(ValueError, match=r"no IS of \[20\] can be set for \['d'\]"):  # before any timing
+        bench.time_cells({"d": (CountingDiffusion(trained_steps=10), {}), "f": (flow, {})}, [20], 0, 1)
+    assert len(flow.steps_per_chunk) == 3  # control: the flow policy was not timed again
+
+
+def test_history_is_filled_so_that_diffusion_with_a_camera_predicts_from_the_batch():
+    import torch
+    from lerobot.configs.types import FeatureType, PolicyFeature
+    from lerobot.policies.diffusion.configuration_diffusion import DiffusionConfig
+    from lerobot.policies.diffusion.modeling_diffusion import DiffusionPolicy
+
+    features = {"observation.state": PolicyFeature(FeatureType.STATE, (4,)),
+                "observation.image": PolicyFeature(FeatureType.VISUAL, (3, 32, 32))}  # fmt: skip
+    cfg = DiffusionConfig(
+        input_features=features, output_features={"action": PolicyFeature(FeatureType.ACTION, (2,))},
+        down_dims=(16, 32), crop_shape=None, pretrained_backbone_weights=None, use_group_norm=True,
+        num_inference_steps=2,
+        device="cpu",
+    )  # fmt: skip
+    policy = DiffusionPolicy(cfg).eval()
+    batch = {"observation.state": torch.zeros(1, 4), "observation.image": torch.zeros(1, 3, 32, 32)}
+    filled = bench.fill_history(policy, batch)
+    assert set(filled) == {*batch, "observation.images"}
+    chunk = policy.predict_action_chunk(filled)
+    assert chunk.shape[0] == 1 and chunk.shape[-1] == 2 and torch.isfinite(chunk).all()
+    with pytest.raises(KeyError, match=r"observation\.images"):  # control: the plain batch lacks it
+        policy.predict_action_chunk(batch)
 
 
 def test_a_checkpoint_without_a_name_or_directory_is_refused(tmp_path):
