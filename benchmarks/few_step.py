@@ -99,7 +99,7 @@ def target_checks(summary: list[dict]) -> list[dict]:
     def mismatch(a: dict, b: dict) -> str | None:
         if a["last_step"] != b["last_step"]:
             return "step differs"
-        return protocol_mismatch(a["protocol"], b["protocol"])
+        return protocol_mismatch(a["protocol"], b["protocol"], (a["setting"], b["setting"]))
 
     checks = []
     for setting in dict.fromkeys(r["setting"] for r in summary):
@@ -146,7 +146,7 @@ def format_targets(checks: list[dict]) -> str:
     if missing:
         lines += [
             "",
-            f"Not run at IS={FEW_IS} on this protocol (no verdict against them): {', '.join(missing)}.",
+            f"Not run at IS={FEW_IS} (no verdict against them): {', '.join(missing)}.",
         ]
     return "\n".join(lines)
 

@@ -107,7 +107,7 @@ def check_reference(cells: list[dict], task: str, reference: str) -> dict:
     if af is None or ref is None:
         missing = [name for name, row in (("actionflow", af), (reference, ref)) if row is None]
         out["why"] = f"not run at IS={FEW_IS}: {', '.join(missing)}"
-    elif mismatch := protocol_mismatch(af["protocol"], ref["protocol"]):
+    elif mismatch := protocol_mismatch(af["protocol"], ref["protocol"], ("actionflow", reference)):
         out["why"] = mismatch
     else:
         out["holds"] = af["success"][0] >= ref["success"][0]

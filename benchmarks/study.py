@@ -236,10 +236,12 @@ def protocol_of(cells: list[dict]) -> dict | None:
     return protocols[0] if protocols and all(p == protocols[0] for p in protocols) else None
 
 
-def protocol_mismatch(a: dict | None, b: dict | None) -> str | None:
-    """Why two :func:`protocol_of` results are not comparable, or None when they are equal."""
-    if a is None or b is None:
-        return "training protocols differ between the seeds of one policy"
+def protocol_mismatch(a: dict | None, b: dict | None, names: tuple[str, str] = ("a", "b")) -> str | None:
+    """Why two :func:`protocol_of` results (of the runs ``names``) are not comparable, or None when
+    they are equal."""
+    mixed = [name for name, p in zip(names, (a, b), strict=True) if p is None]
+    if mixed:
+        return f"training protocols differ between the seeds of {' and '.join(mixed)}"
     differ = [k for k in PROTOCOL if a[k] != b[k]]
     return f"training protocols differ in {', '.join(differ)}" if differ else None
 

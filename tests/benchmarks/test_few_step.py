@@ -119,6 +119,12 @@ def test_a_reference_trained_on_another_protocol_gets_no_verdict():
     same = [dict(r, protocol=PROTOCOL) for r in summary]  # control: one protocol
     (check,) = few_step.target_checks(same)
     assert check["references"]["euclidean_flow"]["at_or_above"] is True
+    mixed = [*summary[:2], dict(summary[2], protocol=None)]  # its seeds were trained differently
+    (check,) = few_step.target_checks(mixed)
+    assert (
+        check["references"]["euclidean_flow"]["why"]
+        == "training protocols differ between the seeds of euclidean_flow"
+    )
 
 
 def test_a_task_without_results_is_named(tmp_path):
