@@ -56,6 +56,19 @@ def read_json(path: Path) -> dict[str, Any] | None:
     return json.loads(path.read_text()) if path.exists() else None
 
 
+@contextlib.contextmanager
+def exclusive_lock(path: Path, busy: str) -> Iterator[None]:
+    """Hold an exclusive ``flock`` on the file ``path`` (created with its folder); if another
+    process holds it, raise ``ValueError(busy)`` at once instead of waiting."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "w") as fh:
+        try:
+            fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise ValueError(busy) from None
+        yield
+
+
 def write_json_atomic(path: Path, data: dict[str, Any]) -> None:
     """Write ``data`` to ``path`` via a flushed temporary file and ``os.replace``."""
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -148,14 +161,8 @@ class Staging:
     @contextlib.contextmanager
     def locked(self) -> Iterator[Staging]:
         """Hold the staging lock; removes the staging folder on exit if nothing is staged."""
-        self.dir.mkdir(parents=True, exist_ok=True)
-        with open(self.dir / "lock", "w") as fh:
-            try:
-                fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            except BlockingIOError:
-                raise ValueError(
-                    f"another actionflow-collect is writing {self.root} (lock in {self.dir})"
-                ) from None
+        busy = f"another actionflow-collect is writing {self.root} (lock in {self.dir})"
+        with exclusive_lock(self.dir / "lock", busy):
             try:
                 yield self
             finally:

@@ -39,14 +39,12 @@ sweep refuses and names them. A second sweep into a folder that one is writing i
 
 from __future__ import annotations
 
-import fcntl
 import json
 import logging
 import math
 import sys
 import time
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -54,7 +52,7 @@ import draccus
 from lerobot.configs.default import EvalConfig
 from lerobot.envs.configs import EnvConfig
 
-from lerobot_actionflow.data.staging import write_json_atomic
+from lerobot_actionflow.data.staging import exclusive_lock, write_json_atomic
 from lerobot_actionflow.evaluation.latency import MODES, Scheme
 from lerobot_actionflow.evaluation.real_latency import at_real_latency, format_real_latency, load_real_latency
 
@@ -367,21 +365,6 @@ def sweep_report(cfg: LatencySweepConfig, rows: list[dict]) -> tuple[list[dict] 
     return at_real, report_text(rows, at_real)
 
 
-@contextmanager
-def _exclusive(out: Path) -> Iterator[None]:
-    """Hold ``out``'s sweep lock: a second sweep into the same folder would overwrite this one's
-    cells with its own, so it is refused."""
-    out.mkdir(parents=True, exist_ok=True)
-    with open(out / ".latency_sweep.lock", "w") as lock:
-        try:
-            fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            raise ValueError(
-                f"another latency sweep is writing {out}: wait for it to end, or choose another --output_dir"
-            ) from None
-        yield
-
-
 def _write(cfg: LatencySweepConfig, rows: list[dict], final: bool) -> None:
     out = Path(cfg.output_dir)
     results = {"settings": {**_settings(cfg), "complete": final}, "cells": rows}
@@ -403,7 +386,11 @@ def run_latency_sweep(cfg: LatencySweepConfig) -> list[dict]:
         raise ValueError("no checkpoints given: pass --checkpoints='[path/to/pretrained_model, ...]'")
     if cfg.output_dir is None:
         return _run(cfg, [])
-    with _exclusive(Path(cfg.output_dir)):
+    # a second sweep into the same folder would overwrite this one's cells with its own
+    busy = (
+        f"another latency sweep is writing {cfg.output_dir}: wait for it to end, or choose another output_dir"
+    )
+    with exclusive_lock(Path(cfg.output_dir) / ".latency_sweep.lock", busy):
         return _run(cfg, load_previous(cfg))
 
 

@@ -11,6 +11,7 @@ from lerobot.envs.factory import make_env_pre_post_processors
 from lerobot.policies.factory import make_policy, make_pre_post_processors
 from lerobot.scripts.lerobot_eval import rollout
 
+from lerobot_actionflow.data.staging import exclusive_lock
 from lerobot_actionflow.envs.configuration import ActionFlowEnvConfig
 from lerobot_actionflow.evaluation import latency_sweep
 from lerobot_actionflow.evaluation.latency import ChunkLatency
@@ -125,7 +126,7 @@ def test_a_sweep_with_other_settings_is_refused_and_the_stored_file_kept(tmp_pat
         ValueError, match=r"env: stored .*'scene_yaw': \[0\.0, 0\.0\].*'scene_yaw': \[-0\.5, 0\.5\]"
     ):
         run_latency_sweep(_sweep_config("ckpt", tmp_path, [0], scene_yaw=(-0.5, 0.5)))
-    with latency_sweep._exclusive(tmp_path):  # another sweep is writing this folder
+    with exclusive_lock(tmp_path / ".latency_sweep.lock", "busy"):  # another sweep is writing this folder
         with pytest.raises(ValueError, match="another latency sweep is writing"):
             run_latency_sweep(_sweep_config("ckpt", tmp_path, [0]))
     assert json.loads(path.read_text()) == stored
