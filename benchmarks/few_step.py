@@ -111,7 +111,7 @@ def target_checks(summary: list[dict]) -> list[dict]:
         for ref, r in refs.items():
             why = mismatch(few, r)
             references[ref] = {
-                "success": r["last"][0], "step": r["last_step"], "why": why,
+                "success": r["last"][0], "seeds": r["last_seeds"], "step": r["last_step"], "why": why,
                 "at_or_above": None if why else few["last"][0] >= r["last"][0],
             }  # fmt: skip
         checks.append({
@@ -131,7 +131,10 @@ def format_targets(checks: list[dict]) -> str:
         return why if value is None else "yes" if value else "no"
 
     head = [f"IS={FEW_IS}", f"IS={FULL_IS}", "gap", f"within {TARGET_GAP_POINTS:g} points"]
-    head += [f">= {ref} at IS={FEW_IS} ({r['success']:.0f}; {r['step']})" for ref, r in refs.items()]
+    head += [
+        f">= {ref} at IS={FEW_IS} ({r['success']:.0f}; {r['seeds']} seeds; {r['step']})"
+        for ref, r in refs.items()
+    ]
     lines = ["| setting (seeds; step) | " + " | ".join(head) + " |", "| --- |" + " ---: |" * len(head)]
     for c in checks:
         vals = [

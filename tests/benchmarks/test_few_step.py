@@ -56,7 +56,7 @@ def test_the_file_keeps_the_candidates_cells_and_the_table_their_seed_statistics
     (check,) = out["tasks"]["Lift"]["targets"]  # the only row with IS = 2 and 10
     assert (check["setting"], check["gap"], check["within_gap"]) == ("noise_concentrated", 5.0, True)
     assert check["references"] == {
-        "euclidean_flow": {"success": 80.0, "step": 3000, "why": None, "at_or_above": True}
+        "euclidean_flow": {"success": 80.0, "seeds": 1, "step": 3000, "why": None, "at_or_above": True}
     }
     assert "| noise_concentrated (2; 3000) | 95 | 100 | 5.0 | yes | yes |" in text
     assert "no verdict against them): diffusion." in text
@@ -94,7 +94,7 @@ def test_target_is_a_gap_of_5_points_or_less_and_the_reference_or_more(few, full
     assert (check["setting"], check["gap"], check["within_gap"]) == ("noise_concentrated", full - few, within)
     assert check["references"]["diffusion"]["at_or_above"] is above
     table = few_step.format_targets([check])
-    assert f">= diffusion at IS=2 ({reference:.0f}; 3000)" in table
+    assert f">= diffusion at IS=2 ({reference:.0f}; 3 seeds; 3000)" in table
     assert f"| {'yes' if within else 'no'} | {'yes' if above else 'no'} |" in table
 
 
