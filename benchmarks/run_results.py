@@ -41,10 +41,12 @@ those cameras and trains and evaluates every setting on it (setting names get
 from __future__ import annotations
 
 import argparse
+import fcntl
 import json
 import os
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 from study import (
@@ -159,6 +161,20 @@ def _folder(setting: str, camera_suffix: str) -> str:
     """A setting's folder name: ``default``, or ``default_wrist_agentview_80`` with cameras
     (sampling-only settings train nothing: their runs are those of the setting they name)."""
     return (setting + camera_suffix).replace("[", "_").replace("@", "_").replace("]", "").replace(",", "_")
+
+
+def record_once(data: Path, record: Callable[[], object]) -> bool:
+    """Call ``record()`` to write the LeRobotDataset ``data`` unless it exists (its
+    ``meta/info.json``); whether it was called. Studies of one task may run side by side on one
+    ``--output``: a blocking lock beside ``data`` makes the first record and the others wait,
+    then find the dataset, instead of starting a second collection into the same folder."""
+    data.parent.mkdir(parents=True, exist_ok=True)
+    with open(data.parent / f".{data.name}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if (data / "meta" / "info.json").exists():
+            return False
+        record()
+        return True
 
 
 def run_study(args, env: dict, data: Path, repo_id: str, collect) -> int:
@@ -327,15 +343,17 @@ def main(argv: list[str] | None = None) -> int:
 
     def collect() -> None:
         """Record the demonstrations unless they are there."""
-        if (data / "meta" / "info.json").exists():
-            return
         start = time.perf_counter()
-        run_logged(
-            [_bin("actionflow-collect"), "--task", args.task, "--episodes", str(args.episodes),
-             "--root", str(data), "--repo-id", repo_id, "--seed", str(args.seed), *images],
-            env, out / "logs" / f"collect{'_' + tag if images else ''}.log",
+        recorded = record_once(
+            data,
+            lambda: run_logged(
+                [_bin("actionflow-collect"), "--task", args.task, "--episodes", str(args.episodes),
+                 "--root", str(data), "--repo-id", repo_id, "--seed", str(args.seed), *images],
+                env, out / "logs" / f"collect{'_' + tag if images else ''}.log",
+            ),
         )  # fmt: skip
-        timings["collect_s"] = time.perf_counter() - start
+        if recorded:
+            timings["collect_s"] = time.perf_counter() - start
 
     if args.study is not None:
         return run_study(args, env, data, repo_id, collect)

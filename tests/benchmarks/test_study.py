@@ -1,6 +1,7 @@
 """The learning study's cell store and summaries (benchmarks/study.py)."""
 
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -213,3 +214,38 @@ def test_the_comparisons_actionflow_is_the_ablation_setting_reports_read_in_its_
     comparison = parse("comparison", COMPARISON["actionflow"].overrides)
     assert parse("ablation", ABLATIONS[COMPARISON_ACTIONFLOW_IN_ABLATION].overrides) == comparison
     assert parse("ablation", ABLATIONS["default"].overrides) != comparison
+
+
+def test_record_once_lets_one_of_two_side_by_side_studies_record(tmp_path):
+    """Two studies of one task on one output: the second waits for the first's collection and
+    then finds the dataset, so it is recorded once; a finished dataset is never recorded again."""
+    import threading
+
+    import run_results
+
+    data = tmp_path / "data"
+    calls, started = [], threading.Event()
+
+    def slow_record():
+        calls.append(threading.current_thread().name)
+        started.set()
+        time.sleep(0.3)  # the second thread reaches the lock while this one records
+        (data / "meta").mkdir(parents=True)
+        (data / "meta" / "info.json").write_text("{}")
+
+    first = threading.Thread(target=run_results.record_once, args=(data, slow_record), name="first")
+    first.start()
+    assert started.wait(5)
+    outcome = {}
+
+    def second_study():
+        outcome["recorded"] = run_results.record_once(data, slow_record)
+
+    second = threading.Thread(target=second_study, name="second")
+    second.start()
+    first.join(5)
+    second.join(5)
+    assert calls == ["first"] and outcome == {"recorded": False}
+    # Control: without the dataset, the call does record.
+    assert run_results.record_once(tmp_path / "other", lambda: calls.append("other")) is True
+    assert calls[-1] == "other"
