@@ -65,6 +65,8 @@ from study import (
 )
 from train_runs import run_logged, train_run
 
+from lerobot_actionflow.evaluation.provenance import DIGEST_KEY, check_same_weights, weights_digest
+
 POLICIES = ("actionflow", "euclidean_flow", "diffusion")
 REPO = Path(__file__).resolve().parents[1]
 #: With cameras, Diffusion Policy's ResNet18 starts from scratch like ActionFlow's (nothing is
@@ -221,6 +223,19 @@ def run_study(args, env: dict, data: Path, repo_id: str, collect) -> int:
             info = run / "train_wall_s.json"
             train_wall = json.loads(info.read_text())["train_wall_s"] if info.exists() else None
             ckpts = _checkpoints(run)
+            digests = {}
+            for step in chosen:
+                digests[step] = weights_digest(ckpts[step])
+                this_run = (args.study, setting.trained_as or base, seed, step, args.cameras)
+                same_checkpoint = [
+                    c for c in store.cells.values()
+                    if (c["study"], c.get("trained_as", c["setting"]), c["seed"], c["step"],
+                        c.get("cameras", "")) == this_run
+                ]  # fmt: skip
+                check_same_weights(
+                    same_checkpoint, digests[step], str(ckpts[step]),
+                    "Evaluate it into another --results file, or remove those cells.",
+                )  # fmt: skip
             for step, eval_task, spacing in grid:
                 todo = missing(step, eval_task, spacing)
                 if not todo:
@@ -255,6 +270,7 @@ def run_study(args, env: dict, data: Path, repo_id: str, collect) -> int:
                             "image_size": args.image_size if args.cameras else None,
                             "episode_length": args.episode_length,
                             "date": time.strftime("%Y-%m-%d", time.gmtime()),
+                            DIGEST_KEY: row.get(DIGEST_KEY, digests[step]),
                         }
                     )  # fmt: skip
     cells = with_cap(list(store.cells.values()), args.episode_length)

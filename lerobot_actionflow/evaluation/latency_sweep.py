@@ -32,9 +32,12 @@ it: cells already there (same checkpoint, inference steps, mode and latency) are
 run again, new ones are added (skipped cells are tried again). So an interrupted sweep continues
 where it stopped, and several calls, one after the other (e.g. one per policy, each with its own
 ``--inference_steps``), build one table. A checkpoint is its resolved path: a ``last`` link is
-recorded as the step it points to. The settings that make cells comparable (the env's config,
-scheme, seed, episodes per cell, env batch, device) must match the stored ones; otherwise the
-sweep refuses and names them. A second sweep into a folder that one is writing is refused.
+recorded as the step it points to, and each cell stores the digest of the weights it measured
+(:mod:`~lerobot_actionflow.evaluation.provenance`): new cells of a checkpoint whose stored cells
+were measured on other weights (a run trained again into the same folder) are refused. The settings
+that make cells comparable (the env's config, scheme, seed, episodes per cell, env batch, device)
+must match the stored ones; otherwise the sweep refuses and names them. A second sweep into a folder
+that one is writing is refused.
 """
 
 from __future__ import annotations
@@ -54,6 +57,7 @@ from lerobot.envs.configs import EnvConfig
 
 from lerobot_actionflow.data.staging import exclusive_lock, write_json_atomic
 from lerobot_actionflow.evaluation.latency import MODES, Scheme
+from lerobot_actionflow.evaluation.provenance import DIGEST_KEY, check_same_weights, weights_digest
 from lerobot_actionflow.evaluation.real_latency import at_real_latency, format_real_latency, load_real_latency
 
 MEASURED = "measured"
@@ -127,13 +131,21 @@ def _cells(cfg: LatencySweepConfig, checkpoint: str, done: set[tuple]):
 
 
 def _evaluate_checkpoint(
-    cfg: LatencySweepConfig, checkpoint: str, on_row: Callable[[dict], None], done: set[tuple]
+    cfg: LatencySweepConfig, checkpoint: str, on_row: Callable[[dict], None], stored: list[dict]
 ) -> None:
-    """Evaluate every cell of ``checkpoint`` not in ``done`` (:func:`cell_key`); ``on_row(row)`` as
-    each is done (or skipped). Loads nothing when all are done."""
+    """Evaluate every cell of ``checkpoint`` not in ``stored`` (by :func:`cell_key`);
+    ``on_row(row)`` as each is done (or skipped). Loads nothing when all are done, and nothing
+    when the stored cells of ``checkpoint`` were measured on other weights
+    (:func:`~lerobot_actionflow.evaluation.provenance.check_same_weights` raises)."""
+    done = {cell_key(r) for r in stored}
     todo = list(_cells(cfg, checkpoint, done))
     if not todo:
         return
+    digest = weights_digest(checkpoint)
+    check_same_weights(
+        (r for r in stored if r["checkpoint"] == checkpoint), digest, checkpoint,
+        f"Evaluate it into another --output_dir, or move {cfg.output_dir}/latency_results.json away.",
+    )  # fmt: skip
     import torch
     from lerobot.configs.policies import PreTrainedConfig
     from lerobot.envs.factory import make_env_pre_post_processors
@@ -167,6 +179,7 @@ def _evaluate_checkpoint(
                 "inference_steps": num_steps,
                 "mode": mode,
                 "latency_ms": _latency_ms(latency_s),
+                DIGEST_KEY: digest,
             }
             try:
                 if num_steps is not None:
@@ -397,7 +410,7 @@ def run_latency_sweep(cfg: LatencySweepConfig) -> list[dict]:
 def _run(cfg: LatencySweepConfig, rows: list[dict]) -> list[dict]:
     if cfg.real_latency is not None:
         load_real_latency(cfg.real_latency)  # a bad report fails before any evaluation
-    done = {cell_key(r) for r in rows}
+    stored = list(rows)
 
     def on_row(row: dict) -> None:
         rows.append(row)
@@ -406,7 +419,7 @@ def _run(cfg: LatencySweepConfig, rows: list[dict]) -> list[dict]:
             _write(cfg, rows, final=False)
 
     for ckpt in cfg.checkpoints:
-        _evaluate_checkpoint(cfg, ckpt, on_row, done)
+        _evaluate_checkpoint(cfg, ckpt, on_row, stored)
     if cfg.output_dir is not None:
         _write(cfg, rows, final=True)
     return rows

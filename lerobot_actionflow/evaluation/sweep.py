@@ -38,6 +38,7 @@ import numpy as np
 from lerobot.configs.default import EvalConfig
 from lerobot.envs.configs import EnvConfig
 
+from lerobot_actionflow.evaluation.provenance import DIGEST_KEY, weights_digest
 from lerobot_actionflow.flow.schedules import SOLVERS, network_calls
 
 
@@ -134,6 +135,7 @@ def _evaluate_checkpoint(cfg: SweepConfig, checkpoint: str) -> list[dict]:
     )
     env_pre, env_post = make_env_pre_post_processors(env_cfg=cfg.env, policy_cfg=policy_cfg)
     envs = make_env(cfg.env, n_envs=cfg.eval.batch_size, use_async_envs=cfg.eval.use_async_envs)
+    digest = weights_digest(checkpoint)
     rows = []
     try:
         for num_steps in cfg.inference_steps:
@@ -163,6 +165,7 @@ def _evaluate_checkpoint(cfg: SweepConfig, checkpoint: str) -> list[dict]:
                     "n_episodes": len(successes),
                     "pc_success": 100.0 * float(np.mean(successes)) if successes else float("nan"),
                     "eval_s": time.perf_counter() - start,
+                    DIGEST_KEY: digest,
                 }
             )
             logging.info("sweep %s", rows[-1])

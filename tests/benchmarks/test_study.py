@@ -122,6 +122,48 @@ def test_plot_study_writes_a_png(tmp_path):
     assert (tmp_path / "p.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+def _fake_checkpoint(run, weights: bytes):
+    """The pretrained_model folder of step 10 of ``run`` (kept if it exists, like a trained run)."""
+    ckpt = run / "checkpoints" / "000010" / "pretrained_model"
+    if not ckpt.exists():
+        ckpt.mkdir(parents=True)
+        (ckpt / "model.safetensors").write_bytes(weights)
+    return ckpt
+
+
+def _fake_sweep(checkpoints, task, steps, extra, out, *a, **k):
+    return [
+        {"inference_steps": s, "sampler": "x", "n_episodes": 2, "pc_success": 50.0, "eval_s": 1.0}
+        for s in steps
+    ]
+
+
+def test_cells_are_not_added_beside_cells_of_other_weights_of_the_same_run(tmp_path, monkeypatch):
+    """A run trained again into its folder (a fresh machine) gets new cells only if its weights are
+    the ones its stored cells measured."""
+    import run_results
+
+    from lerobot_actionflow.evaluation.provenance import DIGEST_KEY, weights_digest
+
+    monkeypatch.setattr(run_results, "_train", lambda run, *a, **k: _fake_checkpoint(run, b"first"))
+    monkeypatch.setattr(run_results, "_sweep", _fake_sweep)
+    results = tmp_path / "cells.json"
+    common = ["--output", str(tmp_path), "--results", str(results), "--study", "ablation", "--seeds", "0",
+              "--steps", "10", "--eval-every", "10", "--eval-episodes", "2",
+              "--settings", "default"]  # fmt: skip
+    (tmp_path / "data" / "meta").mkdir(parents=True)
+    (tmp_path / "data" / "meta" / "info.json").write_text("{}")  # no collection
+    assert run_results.main([*common, "--inference-steps", "2"]) == 0
+    ckpt = tmp_path / "ablation" / "default" / "seed0" / "checkpoints" / "000010" / "pretrained_model"
+    (cell,) = ResultStore(results, "Lift").cells.values()
+    assert cell[DIGEST_KEY] == weights_digest(ckpt)
+    assert run_results.main([*common, "--inference-steps", "2,4"]) == 0  # control: the same weights
+    (ckpt / "model.safetensors").write_bytes(b"trained again")
+    with pytest.raises(ValueError, match="trained again"):
+        run_results.main([*common, "--inference-steps", "2,4,10"])
+    assert sorted(c["inference_steps"] for c in ResultStore(results, "Lift").cells.values()) == [2, 4]
+
+
 def test_a_sampling_only_setting_evaluates_the_runs_it_names_without_training(tmp_path, monkeypatch):
     import run_results
 
@@ -129,7 +171,7 @@ def test_a_sampling_only_setting_evaluates_the_runs_it_names_without_training(tm
 
     def fake_train(run, policy, overrides, seed, *a, **k):
         trained.append((run, tuple(overrides)))  # the real _train skips a run already trained
-        (run / "checkpoints" / "000010" / "pretrained_model").mkdir(parents=True, exist_ok=True)
+        _fake_checkpoint(run, b"weights")
 
     def fake_sweep(checkpoints, task, steps, extra, out, *a, **k):
         swept.append((checkpoints[0], tuple(extra), out))

@@ -17,6 +17,7 @@ from lerobot_actionflow.evaluation import latency_sweep
 from lerobot_actionflow.evaluation.latency import ChunkLatency
 from lerobot_actionflow.evaluation.latency_hold import make_latency_envs
 from lerobot_actionflow.evaluation.latency_sweep import LatencySweepConfig, load_previous, run_latency_sweep
+from lerobot_actionflow.evaluation.provenance import DIGEST_KEY, weights_digest
 from lerobot_actionflow.evaluation.untrained import save_untrained_actionflow
 
 STEPS = 6  # control steps per episode
@@ -113,6 +114,17 @@ def test_a_sweep_resumes_keeping_the_stored_cells_and_running_only_new_ones(
     assert run_latency_sweep(_sweep_config(same, tmp_path, [100, 100.0, 0])) == resumed
     with pytest.raises(AssertionError, match="loaded a policy"):  # control: a new cell does load it
         run_latency_sweep(_sweep_config(checkpoint, tmp_path, [200]))
+    # the folder's weights are not the ones the stored cells measured (a run trained again there):
+    # a new cell is refused before anything is loaded, and the stored file is kept
+    path = tmp_path / "latency_results.json"
+    saved = json.loads(path.read_text())
+    assert {c[DIGEST_KEY] for c in saved["cells"]} == {weights_digest(checkpoint)}
+    for cell in saved["cells"]:
+        cell[DIGEST_KEY] = "0" * 64
+    path.write_text(json.dumps(saved))
+    with pytest.raises(ValueError, match="trained again"):
+        run_latency_sweep(_sweep_config(checkpoint, tmp_path, [200]))
+    assert json.loads(path.read_text()) == saved
 
 
 def test_a_sweep_with_other_settings_is_refused_and_the_stored_file_kept(tmp_path):

@@ -1,0 +1,59 @@
+"""Which weights a stored evaluation measured: the SHA-256 digest of a checkpoint's weights file.
+
+Results files name a checkpoint by its path. A run trained again into the same folder (after a
+crash, on a fresh machine, with changed code) writes its weights under the same name, so a sweep
+that adds cells beside stored ones first compares the digest stored with them
+(:data:`DIGEST_KEY`) with the file's (:func:`check_same_weights`): cells of two different sets of
+weights never end up in one table under one name.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+from collections.abc import Iterable
+from pathlib import Path
+
+from huggingface_hub.constants import SAFETENSORS_SINGLE_FILE
+
+#: The key of a stored cell that holds the digest of the weights it was measured with.
+DIGEST_KEY = "weights_sha256"
+
+
+def weights_digest(pretrained_dir: str | Path) -> str:
+    """Hex SHA-256 of ``pretrained_dir/model.safetensors``.
+
+    Raises:
+        FileNotFoundError: naming the missing weights file.
+    """
+    path = Path(pretrained_dir) / SAFETENSORS_SINGLE_FILE
+    if not path.is_file():
+        raise FileNotFoundError(f"no weights file {path}: is {pretrained_dir} a pretrained_model folder?")
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def check_same_weights(stored: Iterable[dict], digest: str, checkpoint: str, advice: str) -> None:
+    """Refuse to add cells of ``checkpoint`` (weights ``digest``) beside ``stored`` cells of the same
+    name measured on other weights; cells stored without a digest cannot be checked and are
+    reported in the log.
+
+    Raises:
+        ValueError: naming the checkpoint, both digests and ``advice``.
+    """
+    stored = list(stored)
+    other = sorted({c[DIGEST_KEY] for c in stored if c.get(DIGEST_KEY) not in (None, digest)})
+    if other:
+        raise ValueError(
+            f"{checkpoint} now holds weights {digest[:12]}, but its stored cells were measured on "
+            f"{', '.join(d[:12] for d in other)}: it was trained again. {advice}"
+        )
+    unknown = sum(DIGEST_KEY not in c for c in stored)
+    if unknown:
+        logging.warning(
+            "%d stored cells of %s carry no weights digest: they cannot be checked against %s",
+            unknown, checkpoint, digest[:12],
+        )  # fmt: skip
