@@ -11,7 +11,9 @@ evaluation machinery (``make_env``, ``make_policy``, ``make_pre_post_processors`
 - ``diffusion`` (LeRobot's Diffusion Policy): DDIM with IS steps for ``IS < num_train_timesteps``,
   DDPM when ``IS == num_train_timesteps`` (the paper's protocol; 100 by default).
 
-Every IS uses the same env seeds (``--seed`` onwards), so the rates are paired comparisons.
+Every IS uses the same env seeds (``--seed`` onwards) and starts the policy's noise from torch
+seed ``--seed``, so the rates are paired comparisons, and a checkpoint evaluated again on the same
+machine and thread count gives the same rates.
 
 Usage::
 
@@ -144,6 +146,7 @@ def _evaluate_checkpoint(cfg: SweepConfig, checkpoint: str) -> list[dict]:
             start = time.perf_counter()
             for tasks in envs.values():
                 for vec_env in tasks.values():
+                    torch.manual_seed(cfg.seed)  # the same policy noise draws at every IS
                     with torch.no_grad():
                         info = eval_policy(
                             vec_env,

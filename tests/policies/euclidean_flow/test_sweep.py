@@ -193,3 +193,28 @@ def test_the_solver_is_a_sampling_choice_counted_in_network_calls():
         set_inference_steps(policy, 4, solver="rk4")
     with pytest.raises(ValueError, match="flow policies only"):
         set_inference_steps(_tiny_diffusion(), 10, solver="midpoint")
+
+
+def test_a_checkpoint_swept_again_gives_the_same_rates_and_names_its_weights(bimodal_checkpoint, tmp_path):
+    """The policy's noise starts from ``--seed`` at every IS, so a rerun repeats every rate (at
+    IS = 2 the two-mode policy succeeds in part of the episodes, by its noise); each row names
+    the weights it measured."""
+    from lerobot_actionflow.evaluation.provenance import DIGEST_KEY, weights_digest
+
+    args = [
+        "--env.type=ef_commit",
+        f"--checkpoints=[{bimodal_checkpoint}]",
+        "--inference_steps=[2,3]",
+        "--eval.n_episodes=40",
+        "--eval.batch_size=20",
+        "--eval.use_async_envs=false",
+        "--device=cpu",
+    ]
+    torch.manual_seed(1)
+    first = main(args)
+    torch.manual_seed(2)  # whatever the caller's generator holds
+    again = main(args)
+    rates = [r["pc_success"] for r in first]
+    assert rates == [r["pc_success"] for r in again]
+    assert any(0 < rate < 100 for rate in rates), rates  # the noise decides episodes
+    assert {r[DIGEST_KEY] for r in first} == {weights_digest(bimodal_checkpoint)}
