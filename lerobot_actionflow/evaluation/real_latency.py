@@ -13,6 +13,7 @@ a series whose ``k`` was not swept, or that the report does not time, says so.
 from __future__ import annotations
 
 import json
+import logging
 from collections.abc import Callable
 from pathlib import Path
 
@@ -31,7 +32,13 @@ def load_real_latency(path: Path) -> dict[tuple[str, int], float]:
         out = {}
         for cell, figures in cells.items():
             name, _, steps = cell.rpartition("/IS")
-            out[str(Path(names[name]).resolve()), int(steps)] = float(figures["median_ms"])
+            checkpoint = Path(names[name]).resolve()
+            if "last" in checkpoint.parts and not checkpoint.exists():
+                logging.warning(
+                    "%s times %s, a `last` link that does not exist here: it cannot be resolved to "
+                    "its step, so no swept checkpoint matches it", path, checkpoint,
+                )  # fmt: skip
+            out[str(checkpoint), int(steps)] = float(figures["median_ms"])
     except (OSError, json.JSONDecodeError, KeyError, TypeError, ValueError) as e:
         raise ValueError(
             f"{path} is not a bench_checkpoint_latency.py --json report "

@@ -69,6 +69,20 @@ def test_a_series_is_read_at_the_cell_with_its_real_latencys_held_steps(tmp_path
     assert "| 9.3 | 1 | 90 | 88 (50 ms) |" in text
 
 
+def test_a_report_naming_a_last_link_that_is_not_here_says_so(tmp_path, caplog):
+    """On another machine a report's ``last`` link cannot be resolved to its step: the log says
+    why no swept checkpoint will match it, where the join would otherwise be silent."""
+    step = tmp_path / "run" / "checkpoints" / "000010" / "pretrained_model"
+    step.mkdir(parents=True)
+    (tmp_path / "run" / "checkpoints" / "last").symlink_to("000010")
+    gone = tmp_path / "gone" / "checkpoints" / "last" / "pretrained_model"
+    here = str(tmp_path / "run" / "checkpoints" / "last" / "pretrained_model")
+    real = load_real_latency(_report(tmp_path, {"a": here, "b": str(gone)}, {"a/IS2": 9.0, "b/IS2": 8.0}))
+    assert real == {(str(step), 2): 9.0, (str(gone), 2): 8.0}  # the link here is read as its step
+    assert "gone/checkpoints/last/pretrained_model, a `last` link that does not exist here" in caplog.text
+    assert str(step) not in caplog.text  # control: the link that exists is not reported
+
+
 def test_a_file_that_is_not_a_latency_report_is_refused(tmp_path):
     path = tmp_path / "other.json"
     path.write_text(json.dumps({"cells": []}))
