@@ -257,8 +257,13 @@ def format_tables(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
+#: Line style of each execution mode in the plot; the colour tells the checkpoint and K/IS.
+MODE_LINESTYLES = {"plain": "-", "scheme": "--", "rtc": ":"}
+
+
 def plot_success(rows: list[dict], path: Path, at_real: list[dict] = ()) -> Path | None:
-    """Success against injected latency, one line per series, and a star per ``at_real`` entry
+    """Success against injected latency, one line per series (a colour per checkpoint and K/IS,
+    a line style per mode, :data:`MODE_LINESTYLES`), and a star per ``at_real`` entry
     (:func:`~lerobot_actionflow.evaluation.real_latency.at_real_latency`) at the series' measured
     latency; None without matplotlib."""
     try:
@@ -269,21 +274,26 @@ def plot_success(rows: list[dict], path: Path, at_real: list[dict] = ()) -> Path
     except ImportError:
         return None
     series: dict[str, list[tuple[float, float]]] = {}
+    group_of: dict[str, tuple[str, int | None]] = {}
     for r in rows:
         if "skipped" not in r and not isinstance(r["latency_ms"], str):
             series.setdefault(_series(r), []).append((r["latency_ms"], r["pc_success"]))
+            group_of[_series(r)] = (r["checkpoint"], r["inference_steps"])
     if not series:
         return None
-    fig, ax = plt.subplots(figsize=(7, 4.5))
-    colours = {}
+    groups = list(dict.fromkeys(group_of.values()))
+    palette = plt.get_cmap("tab10" if len(groups) <= 10 else "tab20").colors
+    colour = {g: palette[i % len(palette)] for i, g in enumerate(groups)}
+    fig, ax = plt.subplots(figsize=(8, 5))
     for name, pts in series.items():
         pts.sort()
-        (line,) = ax.plot([p[0] for p in pts], [p[1] for p in pts], marker="o", label=name)
-        colours[name] = line.get_color()
+        mode = name.rsplit(" ", 1)[-1]
+        ax.plot([p[0] for p in pts], [p[1] for p in pts], marker="o", markersize=4, label=name,
+                color=colour[group_of[name]], linestyle=MODE_LINESTYLES.get(mode, "-"))  # fmt: skip
     for e in at_real:
-        if e["success_at_real"] is not None:
-            colour = colours.get(_series(e))
-            ax.plot(e["real_ms"], e["success_at_real"], marker="*", markersize=14, color=colour, mec="k")
+        if e["success_at_real"] is not None and _series(e) in group_of:
+            ax.plot(e["real_ms"], e["success_at_real"], marker="*", markersize=14,
+                    color=colour[group_of[_series(e)]], mec="k")  # fmt: skip
     ax.set_xlabel("injected inference latency (ms); stars: each series at its measured latency")
     ax.set_ylabel("success (%)")
     ax.set_ylim(-2, 102)
