@@ -138,6 +138,15 @@ def _fake_sweep(checkpoints, task, steps, extra, out, *a, **k):
     ]
 
 
+def _study_args(tmp_path, results) -> list[str]:
+    """run_results.py's arguments for a one-seed, one-checkpoint ablation into ``tmp_path``, whose
+    demonstrations are marked as recorded (no collection)."""
+    (tmp_path / "data" / "meta").mkdir(parents=True)
+    (tmp_path / "data" / "meta" / "info.json").write_text("{}")
+    return ["--output", str(tmp_path), "--results", str(results), "--study", "ablation", "--seeds", "0",
+            "--steps", "10", "--eval-every", "10", "--eval-episodes", "2"]  # fmt: skip
+
+
 def test_cells_are_not_added_beside_cells_of_other_weights_of_the_same_run(tmp_path, monkeypatch):
     """A run trained again into its folder (a fresh machine) gets new cells only if its weights are
     the ones its stored cells measured."""
@@ -148,11 +157,7 @@ def test_cells_are_not_added_beside_cells_of_other_weights_of_the_same_run(tmp_p
     monkeypatch.setattr(run_results, "_train", lambda run, *a, **k: _fake_checkpoint(run, b"first"))
     monkeypatch.setattr(run_results, "_sweep", _fake_sweep)
     results = tmp_path / "cells.json"
-    common = ["--output", str(tmp_path), "--results", str(results), "--study", "ablation", "--seeds", "0",
-              "--steps", "10", "--eval-every", "10", "--eval-episodes", "2",
-              "--settings", "default"]  # fmt: skip
-    (tmp_path / "data" / "meta").mkdir(parents=True)
-    (tmp_path / "data" / "meta" / "info.json").write_text("{}")  # no collection
+    common = [*_study_args(tmp_path, results), "--settings", "default"]
     assert run_results.main([*common, "--inference-steps", "2"]) == 0
     ckpt = tmp_path / "ablation" / "default" / "seed0" / "checkpoints" / "000010" / "pretrained_model"
     (cell,) = ResultStore(results, "Lift").cells.values()
@@ -175,19 +180,12 @@ def test_a_sampling_only_setting_evaluates_the_runs_it_names_without_training(tm
 
     def fake_sweep(checkpoints, task, steps, extra, out, *a, **k):
         swept.append((checkpoints[0], tuple(extra), out))
-        return [
-            {"inference_steps": s, "sampler": "x", "n_episodes": 2, "pc_success": 50.0, "eval_s": 1.0}
-            for s in steps
-        ]
+        return _fake_sweep(checkpoints, task, steps, extra, out)
 
     monkeypatch.setattr(run_results, "_train", fake_train)
     monkeypatch.setattr(run_results, "_sweep", fake_sweep)
     results = tmp_path / "cells.json"
-    common = ["--output", str(tmp_path), "--results", str(results), "--study", "ablation", "--seeds", "0",
-              "--steps", "10", "--eval-every", "10", "--eval-episodes", "2",
-              "--inference-steps", "2,4"]  # fmt: skip
-    (tmp_path / "data" / "meta").mkdir(parents=True)
-    (tmp_path / "data" / "meta" / "info.json").write_text("{}")  # no collection
+    common = [*_study_args(tmp_path, results), "--inference-steps", "2,4"]
     assert run_results.main([*common, "--settings", "default,solver_midpoint,squash_off"]) == 0
 
     runs = [(run.relative_to(tmp_path).as_posix(), overrides) for run, overrides in trained]
