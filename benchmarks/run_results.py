@@ -270,7 +270,7 @@ def run_study(args, env: dict, data: Path, repo_id: str, collect) -> int:
                             "image_size": args.image_size if args.cameras else None,
                             "episode_length": args.episode_length,
                             "date": time.strftime("%Y-%m-%d", time.gmtime()),
-                            DIGEST_KEY: row.get(DIGEST_KEY, digests[step]),
+                            DIGEST_KEY: digests[step],
                         }
                     )  # fmt: skip
     cells = with_cap(list(store.cells.values()), args.episode_length)
