@@ -29,11 +29,8 @@ def weights_digest(pretrained_dir: str | Path) -> str:
     path = Path(pretrained_dir) / SAFETENSORS_SINGLE_FILE
     if not path.is_file():
         raise FileNotFoundError(f"no weights file {path}: is {pretrained_dir} a pretrained_model folder?")
-    digest = hashlib.sha256()
     with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
+        return hashlib.file_digest(f, "sha256").hexdigest()
 
 
 def check_same_weights(stored: Iterable[dict], digest: str, checkpoint: str, advice: str) -> None:
