@@ -41,7 +41,6 @@ their 128-point FPS subsample). ``--variants MugHang_D0`` evaluates the training
 from __future__ import annotations
 
 import argparse
-import fcntl
 import json
 import os
 import sys
@@ -49,6 +48,7 @@ from pathlib import Path
 
 from train_runs import final_checkpoint, run_logged, train_run
 
+from lerobot_actionflow.data.staging import exclusive_lock
 from lerobot_actionflow.schema import POINT_CLOUD_KEY
 
 TRAIN_TASK = "MugHang_D0"
@@ -104,9 +104,7 @@ def policies(args) -> dict[str, dict]:
 def merge_save(path: Path, results: dict) -> dict:
     """Merge ``results`` into the JSON at ``path`` (timings and cells per policy and variant; ours
     win) under ``<path>.lock``, write it atomically, and return the merged content."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path.with_name(path.name + ".lock"), "w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)
+    with exclusive_lock(path.with_name(path.name + ".lock")):
         merged = json.loads(path.read_text()) if path.exists() else {"timings": {}, "cells": {}}
         merged["args"] = results["args"]
         merged["timings"].update(results["timings"])

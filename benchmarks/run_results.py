@@ -41,7 +41,6 @@ those cameras and trains and evaluates every setting on it (setting names get
 from __future__ import annotations
 
 import argparse
-import fcntl
 import json
 import os
 import sys
@@ -65,6 +64,7 @@ from study import (
 )
 from train_runs import run_logged, train_run
 
+from lerobot_actionflow.data.staging import exclusive_lock
 from lerobot_actionflow.evaluation.provenance import DIGEST_KEY, check_same_weights, weights_digest
 
 POLICIES = ("actionflow", "euclidean_flow", "diffusion")
@@ -170,9 +170,7 @@ def record_once(data: Path, record: Callable[[], object]) -> bool:
     ``meta/info.json``); whether it was called. Studies of one task may run side by side on one
     ``--output``: a blocking lock beside ``data`` makes the first record and the others wait,
     then find the dataset, instead of starting a second collection into the same folder."""
-    data.parent.mkdir(parents=True, exist_ok=True)
-    with open(data.parent / f".{data.name}.lock", "w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)
+    with exclusive_lock(data.parent / f".{data.name}.lock"):
         if (data / "meta" / "info.json").exists():
             return False
         record()

@@ -17,13 +17,14 @@ and for the best evaluated one (the checkpoint step with the highest mean over s
 
 from __future__ import annotations
 
-import fcntl
 import json
 import os
 import statistics
 import tempfile
 from dataclasses import asdict, dataclass
 from pathlib import Path
+
+from lerobot_actionflow.data.staging import exclusive_lock
 
 #: Protocol shared by every policy of the study (history, horizon, executed actions).
 COMMON = ["--policy.n_obs_steps=2", "--policy.horizon=16", "--policy.n_action_steps=8"]
@@ -198,9 +199,7 @@ class ResultStore:
         return key in self.cells
 
     def add(self, cell: dict) -> None:
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        with open(self.path.with_name(self.path.name + ".lock"), "w") as lock:
-            fcntl.flock(lock, fcntl.LOCK_EX)
+        with exclusive_lock(self.path.with_name(self.path.name + ".lock")):
             self._reload()
             self.cells[cell_key(cell)] = cell
             self._write()

@@ -57,13 +57,14 @@ def read_json(path: Path) -> dict[str, Any] | None:
 
 
 @contextlib.contextmanager
-def exclusive_lock(path: Path, busy: str) -> Iterator[None]:
-    """Hold an exclusive ``flock`` on the file ``path`` (created with its folder); if another
-    process holds it, raise ``ValueError(busy)`` at once instead of waiting."""
+def exclusive_lock(path: Path, busy: str | None = None) -> Iterator[None]:
+    """Hold an exclusive ``flock`` on the file ``path`` (created with its folder). If another
+    process (or another open of the file) holds it: with ``busy``, raise ``ValueError(busy)`` at
+    once; without, wait for it."""
     path.parent.mkdir(parents=True, exist_ok=True)
     with open(path, "w") as fh:
         try:
-            fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            fcntl.flock(fh, fcntl.LOCK_EX if busy is None else fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
             raise ValueError(busy) from None
         yield

@@ -36,8 +36,9 @@ recorded as the step it points to, and each cell stores the digest of the weight
 (:mod:`~lerobot_actionflow.evaluation.provenance`): new cells of a checkpoint whose stored cells
 were measured on other weights (a run trained again into the same folder) are refused. The settings
 that make cells comparable (the env's config, scheme, seed, episodes per cell, env batch, device)
-must match the stored ones; otherwise the sweep refuses and names them. A second sweep into a folder
-that one is writing is refused.
+must match the stored ones; otherwise the sweep refuses and names them. Sweeps may run side by side
+into one folder (e.g. one per policy): each cell is merged into the file under a lock, and a cell
+that another sweep stored meanwhile is not evaluated again.
 """
 
 from __future__ import annotations
@@ -131,11 +132,16 @@ def _cells(cfg: LatencySweepConfig, checkpoint: str, done: set[tuple]):
 
 
 def _evaluate_checkpoint(
-    cfg: LatencySweepConfig, checkpoint: str, on_row: Callable[[dict], None], stored: list[dict]
+    cfg: LatencySweepConfig,
+    checkpoint: str,
+    on_row: Callable[[dict], None],
+    stored: list[dict],
+    stored_since: Callable[[tuple], bool] = lambda key: False,
 ) -> None:
-    """Evaluate every cell of ``checkpoint`` not in ``stored`` (by :func:`cell_key`);
-    ``on_row(row)`` as each is done (or skipped). Loads nothing when all are done, and nothing
-    when the stored cells of ``checkpoint`` were measured on other weights
+    """Evaluate every cell of ``checkpoint`` not in ``stored`` (by :func:`cell_key`), and not
+    ``stored_since(key)`` (by another sweep, asked just before the cell); ``on_row(row)`` as each
+    is done (or skipped). Loads nothing when all are done, and nothing when the stored cells of
+    ``checkpoint`` were measured on other weights
     (:func:`~lerobot_actionflow.evaluation.provenance.check_same_weights` raises)."""
     done = {cell_key(r) for r in stored}
     todo = list(_cells(cfg, checkpoint, done))
@@ -181,6 +187,9 @@ def _evaluate_checkpoint(
                 "latency_ms": _latency_ms(latency_s),
                 DIGEST_KEY: digest,
             }
+            if stored_since(cell_key(row)):
+                logging.info("latency sweep: %s was stored by another sweep meanwhile", cell_key(row))
+                continue
             try:
                 if num_steps is not None:
                     set_inference_steps(policy, num_steps)
@@ -341,9 +350,9 @@ def _load_results(cfg: LatencySweepConfig) -> dict | None:
     return saved
 
 
-def load_previous(cfg: LatencySweepConfig) -> list[dict]:
-    """The evaluated cells of the sweep stored in ``cfg.output_dir`` (none without a file there);
-    skipped cells are left out, so that they are tried again.
+def stored_cells(cfg: LatencySweepConfig) -> list[dict]:
+    """Every cell of the sweep stored in ``cfg.output_dir``, skipped ones included (none without
+    a file there).
 
     Raises:
         ValueError: the stored sweep has other settings (:func:`_settings`), or is not a sweep.
@@ -360,7 +369,13 @@ def load_previous(cfg: LatencySweepConfig) -> list[dict]:
             f"{_results_path(cfg)} holds a sweep with other settings ({said}); resume it with its "
             "settings, or choose another --output_dir"
         )
-    return [c for c in saved["cells"] if "skipped" not in c]
+    return saved["cells"]
+
+
+def load_previous(cfg: LatencySweepConfig) -> list[dict]:
+    """The evaluated cells of :func:`stored_cells`: skipped cells are left out, so that they are
+    tried again."""
+    return [c for c in stored_cells(cfg) if "skipped" not in c]
 
 
 def real_latency_report(cfg: LatencySweepConfig) -> Path | None:
@@ -402,37 +417,52 @@ def _write(cfg: LatencySweepConfig, rows: list[dict], final: bool) -> None:
 
 
 def run_latency_sweep(cfg: LatencySweepConfig) -> list[dict]:
-    """Evaluate every cell that ``output_dir`` does not hold yet (:func:`load_previous`); if
-    ``output_dir``, writes the JSON and the markdown after each cell (``settings.complete`` False
-    until the end), then the plot. Returns all cells, the stored ones first."""
+    """Evaluate every cell that ``output_dir`` does not hold yet (:func:`load_previous`). With an
+    ``output_dir``, merges each cell into its JSON and rewrites the markdown (``settings.complete``
+    False), and at the end writes them with ``complete`` True, and the plot; returns all the
+    folder's cells then (the stored ones first, including those other sweeps added meanwhile).
+    Without, returns this call's cells."""
     if not cfg.checkpoints:
         raise ValueError("no checkpoints given: pass --checkpoints='[path/to/pretrained_model, ...]'")
-    if cfg.output_dir is None:
-        return _run(cfg, [])
-    # a second sweep into the same folder would overwrite this one's cells with its own
-    busy = (
-        f"another latency sweep is writing {cfg.output_dir}: wait for it to end, or choose another output_dir"
-    )
-    with exclusive_lock(Path(cfg.output_dir) / ".latency_sweep.lock", busy):
-        return _run(cfg, load_previous(cfg))
-
-
-def _run(cfg: LatencySweepConfig, rows: list[dict]) -> list[dict]:
     if cfg.real_latency is not None:
         load_real_latency(cfg.real_latency)  # a bad report fails before any evaluation
-    stored = list(rows)
+    if cfg.output_dir is None:
+        rows: list[dict] = []
+        for ckpt in cfg.checkpoints:
+            _evaluate_checkpoint(cfg, ckpt, rows.append, [])
+        return rows
+    with _folder_lock(cfg):
+        stored = load_previous(cfg)  # other settings fail here, before any evaluation
 
     def on_row(row: dict) -> None:
-        rows.append(row)
         logging.info("latency sweep: %s", {k: v for k, v in row.items() if k != "episodes"})
-        if cfg.output_dir is not None:
-            _write(cfg, rows, final=False)
+        with _folder_lock(cfg):
+            _write(cfg, _merged(cfg, row), final=False)
+
+    def stored_since(key: tuple) -> bool:
+        with _folder_lock(cfg):
+            return key in {cell_key(r) for r in load_previous(cfg)}
 
     for ckpt in cfg.checkpoints:
-        _evaluate_checkpoint(cfg, ckpt, on_row, stored)
-    if cfg.output_dir is not None:
+        _evaluate_checkpoint(cfg, ckpt, on_row, stored, stored_since)
+    with _folder_lock(cfg):
+        rows = _merged(cfg)
         _write(cfg, rows, final=True)
     return rows
+
+
+def _folder_lock(cfg: LatencySweepConfig):
+    """The lock that makes reading and rewriting ``output_dir``'s files one step (it waits)."""
+    return exclusive_lock(Path(cfg.output_dir) / ".latency_sweep.lock")
+
+
+def _merged(cfg: LatencySweepConfig, row: dict | None = None) -> list[dict]:
+    """The folder's cells as stored now (skipped ones included), with ``row`` added in place of a
+    stored cell with its :func:`cell_key`. Call it holding :func:`_folder_lock`."""
+    cells = stored_cells(cfg)
+    if row is None:
+        return cells
+    return [c for c in cells if cell_key(c) != cell_key(row)] + [row]
 
 
 def main(argv: list[str] | None = None) -> list[dict]:

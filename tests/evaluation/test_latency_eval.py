@@ -11,9 +11,8 @@ from lerobot.envs.factory import make_env_pre_post_processors
 from lerobot.policies.factory import make_policy, make_pre_post_processors
 from lerobot.scripts.lerobot_eval import rollout
 
-from lerobot_actionflow.data.staging import exclusive_lock
 from lerobot_actionflow.envs.configuration import ActionFlowEnvConfig
-from lerobot_actionflow.evaluation import latency_sweep
+from lerobot_actionflow.evaluation import latency, latency_sweep
 from lerobot_actionflow.evaluation.latency import ChunkLatency
 from lerobot_actionflow.evaluation.latency_hold import make_latency_envs
 from lerobot_actionflow.evaluation.latency_sweep import LatencySweepConfig, load_previous, run_latency_sweep
@@ -138,14 +137,28 @@ def test_a_sweep_with_other_settings_is_refused_and_the_stored_file_kept(tmp_pat
         ValueError, match=r"env: stored .*'scene_yaw': \[0\.0, 0\.0\].*'scene_yaw': \[-0\.5, 0\.5\]"
     ):
         run_latency_sweep(_sweep_config("ckpt", tmp_path, [0], scene_yaw=(-0.5, 0.5)))
-    with exclusive_lock(tmp_path / ".latency_sweep.lock", "busy"):  # another sweep is writing this folder
-        with pytest.raises(ValueError, match="another latency sweep is writing"):
-            run_latency_sweep(_sweep_config("ckpt", tmp_path, [0]))
     assert json.loads(path.read_text()) == stored
     assert load_previous(_sweep_config("ckpt", tmp_path, [0, 800])) == stored["cells"]  # control
     path.write_text("{not json")
     with pytest.raises(ValueError, match="is not a latency sweep's results"):
         load_previous(_sweep_config("ckpt", tmp_path, [0]))
+
+
+def test_sweeps_side_by_side_into_one_folder_keep_each_others_cells(checkpoint, tmp_path, monkeypatch):
+    evaluate, evaluated = latency.evaluate_with_latency, []
+
+    def evaluate_while_another_sweep_runs(*args, latency_s, **kwargs):
+        evaluated.append(latency_s)
+        if len(evaluated) == 1:  # during this sweep's first cell, a second sweep runs whole
+            run_latency_sweep(_sweep_config(checkpoint, tmp_path, [100]))
+        return evaluate(*args, latency_s=latency_s, **kwargs)
+
+    monkeypatch.setattr(latency, "evaluate_with_latency", evaluate_while_another_sweep_runs)
+    rows = run_latency_sweep(_sweep_config(checkpoint, tmp_path, [0, 100]))
+    assert evaluated == [0.0, 0.1]  # the second sweep's cell was not evaluated again
+    saved = json.loads((tmp_path / "latency_results.json").read_text())
+    assert [c["latency_ms"] for c in saved["cells"]] == [r["latency_ms"] for r in rows] == [100.0, 0.0]
+    assert saved["settings"]["complete"]
 
 
 def test_the_held_target_at_an_episodes_start_keeps_the_arm_still():
