@@ -428,14 +428,19 @@ def run_latency_sweep(cfg: LatencySweepConfig) -> list[dict]:
         load_real_latency(cfg.real_latency)  # a bad report fails before any evaluation
     if cfg.output_dir is None:
         rows: list[dict] = []
+
+        def keep(row: dict) -> None:
+            _log_row(row)
+            rows.append(row)
+
         for ckpt in cfg.checkpoints:
-            _evaluate_checkpoint(cfg, ckpt, rows.append, [])
+            _evaluate_checkpoint(cfg, ckpt, keep, [])
         return rows
     with _folder_lock(cfg):
         stored = load_previous(cfg)  # other settings fail here, before any evaluation
 
     def on_row(row: dict) -> None:
-        logging.info("latency sweep: %s", {k: v for k, v in row.items() if k != "episodes"})
+        _log_row(row)
         with _folder_lock(cfg):
             _write(cfg, _merged(cfg, row), final=False)
 
@@ -449,6 +454,10 @@ def run_latency_sweep(cfg: LatencySweepConfig) -> list[dict]:
         rows = _merged(cfg)
         _write(cfg, rows, final=True)
     return rows
+
+
+def _log_row(row: dict) -> None:
+    logging.info("latency sweep: %s", {k: v for k, v in row.items() if k != "episodes"})
 
 
 def _folder_lock(cfg: LatencySweepConfig):
