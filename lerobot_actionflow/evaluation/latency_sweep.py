@@ -419,7 +419,8 @@ def _write(cfg: LatencySweepConfig, rows: list[dict], final: bool) -> None:
 def run_latency_sweep(cfg: LatencySweepConfig) -> list[dict]:
     """Evaluate every cell that ``output_dir`` does not hold yet (:func:`load_previous`). With an
     ``output_dir``, merges each cell into its JSON and rewrites the markdown (``settings.complete``
-    False), and at the end writes them with ``complete`` True, and the plot; returns all the
+    False), and at the end writes them with ``complete`` True (with sweeps side by side: the
+    last one to write had finished), and the plot; returns all the
     folder's cells then (the stored ones first, including those other sweeps added meanwhile).
     Without, returns this call's cells."""
     if not cfg.checkpoints:
