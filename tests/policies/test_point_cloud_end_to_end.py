@@ -54,7 +54,7 @@ def test_collect_train_eval_mug_hang_with_point_clouds(tmp_path):
          "--env.task=MugHang_D0", "--env.point_cloud=true", f"--env.point_cloud_points={POINTS}",
          "--env.point_cloud_image_size=32", "--env.episode_length=10", "--env.visualization_height=32",
          "--env.visualization_width=32", "--eval.n_episodes=1", "--eval.batch_size=1",
-         f"--output_dir={out}", "--seed=3"],
+         "--eval.use_async_envs=false", f"--output_dir={out}", "--seed=3"],
         tmp_path,
     )  # fmt: skip
     info = json.loads((out / "eval_info.json").read_text())
