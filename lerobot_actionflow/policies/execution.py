@@ -17,6 +17,11 @@ Three options of ``select_action``, all off by default (the fields of
 * **Exponential smoothing of the commanded target** on SE(3) (:class:`TargetSmoother`):
   ``y_n = geodesic_blend(y_{n-1}, a_n, alpha)``, rotations along the geodesic, positions and
   gripper linearly; ``alpha = 1`` returns the policy's actions unchanged.
+* **Guidance toward the previous chunk** (``guide_to_previous_chunk``, :class:`PreviousChunk`):
+  each new chunk is sampled with real-time chunking's guidance toward the actions the previous
+  chunk still holds from the current step on, so that consecutive chunks agree. Its first
+  ``d`` actions (the expected skip) are frozen to the leftover's; at no delay nothing is frozen
+  and the guidance alone keeps the plan.
 
 And the inputs of LeRobot's real-time chunking (``lerobot-rollout --inference.type=rtc``)
 turned into the target, weights and frozen mask of :mod:`lerobot_actionflow.flow.guidance`
@@ -89,6 +94,13 @@ class RealTimeExecutionConfig:
         target_smoothing [App. G: exponential smoothing]: weight ``alpha`` in (0, 1] of the new
             action in ``y_n = blend(y_{n-1}, a_n, alpha)``, rotations along the SE(3) geodesic;
             1 = no smoothing.
+        guide_to_previous_chunk: sample each new chunk with real-time chunking's guidance
+            (``predict_action_chunk(inference_delay=d, prev_chunk_left_over=...)``, weights from
+            ``rtc_config``, else LeRobot's defaults) toward the previous chunk's actions from the
+            current step on; ``d`` is the skip expected from the fixed delay plus the previous
+            chunk's measured time. What ``lerobot-rollout --inference.type=rtc`` does, inside
+            ``select_action`` (so ``lerobot-eval`` and any loop get it). Needs ``solver="euler"``;
+            the guided sampler runs eagerly (no compiled or exported sampler).
 
     The paper's "execute two actions, then re-plan" is the policy's ``n_action_steps=2``.
     """
@@ -98,6 +110,7 @@ class RealTimeExecutionConfig:
     measure_inference_delay: bool = False
     control_period_s: float | None = None
     target_smoothing: float = 1.0
+    guide_to_previous_chunk: bool = False
 
     def validate_execution(self) -> None:
         """Refuse execution options that cannot work (:class:`PolicyConfigError`)."""
@@ -126,6 +139,16 @@ class RealTimeExecutionConfig:
             isinstance(alpha, (int, float)) and 0 < alpha <= 1,
             f"`target_smoothing` must be in (0, 1] (1: no smoothing), got {alpha!r}",
         )
+        require(
+            isinstance(self.guide_to_previous_chunk, bool),
+            f"`guide_to_previous_chunk` must be true or false, got {self.guide_to_previous_chunk!r}",
+        )
+        solver = getattr(self, "solver", "euler")
+        require(
+            not self.guide_to_previous_chunk or solver == "euler",
+            f"`guide_to_previous_chunk` steers Euler steps, but the policy's solver is {solver!r}: set "
+            "--policy.solver=euler (with twice the num_inference_steps for the same network calls)",
+        )
 
 
 @dataclass(frozen=True)
@@ -137,6 +160,7 @@ class ExecutionOptions:
     measure: bool = False
     control_period_s: float | None = None
     smoothing: float = 1.0
+    guide: bool = False
 
     @classmethod
     def from_config(cls, config: RealTimeExecutionConfig) -> ExecutionOptions:
@@ -146,6 +170,7 @@ class ExecutionOptions:
             measure=config.measure_inference_delay,
             control_period_s=config.control_period_s,
             smoothing=config.target_smoothing,
+            guide=config.guide_to_previous_chunk,
         )
 
     def delay_in_steps(self, measured_s: float = 0.0) -> float:
@@ -172,6 +197,59 @@ def timed(fn: Callable[[], Tensor], device: torch.device, measure: bool = True) 
     if device.type == "cuda":
         torch.cuda.synchronize(device)
     return out, perf_counter() - start
+
+
+class PreviousChunk:
+    """The last chunk ``select_action`` planned and where the current step is in it, for
+    :attr:`RealTimeExecutionConfig.guide_to_previous_chunk`.
+
+    A chunk ``(B, H, A)`` predicted at step ``n`` holds the actions of steps ``n .. n + H - 1``;
+    after its window ``start .. stop - 1`` was executed the next observation is that of step
+    ``n + stop``, so the leftover is ``chunk[:, stop:]`` (None once the chunk is used up).
+    :meth:`reset` at every episode start.
+    """
+
+    def __init__(self) -> None:
+        self.reset()
+
+    def reset(self) -> None:
+        self._chunk: Tensor | None = None
+        self._next = 0
+        #: measured inference time of the last chunk (s): the estimate of the next one's.
+        self.seconds = 0.0
+
+    def store(self, chunk: Tensor, window: slice, seconds: float) -> None:
+        self._chunk, self._next, self.seconds = chunk, window.stop, seconds
+
+    def leftover(self) -> Tensor | None:
+        """The previous chunk's actions from the current step on ``(B, T, A)``, or None."""
+        if self._chunk is None or self._next >= self._chunk.shape[1]:
+            return None
+        return self._chunk[:, self._next :]
+
+
+def plan_chunk(
+    predict: Callable[..., Tensor],
+    history: dict[str, Tensor],
+    options: ExecutionOptions,
+    previous: PreviousChunk,
+    n_action_steps: int,
+    device: torch.device,
+) -> Tensor:
+    """One chunk boundary of ``select_action``: ``predict(history, inference_delay=...,
+    prev_chunk_left_over=...)`` (the policy's ``predict_action_chunk``; a leftover only with
+    ``options.guide``), timed, and its execution window; returns the actions to queue
+    ``(B, m, A)``."""
+    leftover = previous.leftover() if options.guide else None
+    delay = num_skipped(options.delay_in_steps(previous.seconds)) if leftover is not None else None
+    actions, seconds = timed(
+        lambda: predict(history, inference_delay=delay, prev_chunk_left_over=leftover),
+        device,
+        options.measure,
+    )
+    window = options.window(actions.shape[1], n_action_steps, seconds)
+    previous.store(actions, window, seconds)
+    return actions[:, window]
 
 
 # -- smoothing of the commanded target ----------------------------------------------------------------

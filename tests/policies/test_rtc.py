@@ -1,7 +1,8 @@
 """LeRobot's real-time chunking (``lerobot-rollout --inference.type=rtc``) for both policies: the
 engine accepts them, the first ``inference_delay`` actions reproduce the leftover chunk, no
 leftover changes nothing, the engine's one-step observations build the history, and ActionFlow
-stays SE(3)-equivariant with RTC on."""
+stays SE(3)-equivariant with RTC on; ``guide_to_previous_chunk`` does the same guidance inside
+``select_action``."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ from lerobot.policies.rtc.configuration_rtc import RTCConfig
 from lerobot.rollout.inference.rtc import _normalize_prev_actions_length, supports_rtc_inference
 
 from lerobot_actionflow import geometry as g
+from lerobot_actionflow.policies.config_errors import PolicyConfigError
 from lerobot_actionflow.schema import ACTION_KEY
 from lerobot_actionflow.schema.tensors import action_to_pose
 
@@ -154,3 +156,77 @@ def test_actionflow_with_rtc_is_equivariant():
     # control: the leftover not moved with the scene
     a_c = policy.predict_action_chunk(_observations(moved), prev_chunk_left_over=leftover, **kw)
     assert _equivariance_error(a, a_c, r_d, p_d) > 1e-2
+
+
+def _guided(policy, m: int, delay: int):
+    policy.config.n_action_steps = m
+    policy.config.execution_delay_steps = delay
+    policy.config.guide_to_previous_chunk = True
+    policy.config.validate_execution()
+    policy.reset()
+    return policy
+
+
+def _run(policy, steps, m, noise):
+    """select_action ``m`` times on each observation step ``(B, ...)``: the executed ``(B, T, A)``."""
+    return torch.stack([policy.select_action(s, noise=noise) for s in steps for _ in range(m)], 1)
+
+
+@POLICIES
+@pytest.mark.parametrize("delay", [0, 1])
+def test_select_action_guides_each_chunk_toward_the_previous_one(make, delay):
+    """``guide_to_previous_chunk``: the first chunk is the plain one; at the next boundary
+    ``select_action`` samples ``predict_action_chunk(inference_delay=d, prev_chunk_left_over=the
+    first chunk from the current step on)`` and executes it from the skipped ``d`` on."""
+    policy, batch, noise, _ = make()
+    m = 2
+    policy = _guided(policy, m, delay)
+    history = {k: v[:, :1].expand(-1, N_OBS, *v.shape[2:]).clone() for k, v in _observations(batch).items()}
+    step = {k: v[:, 0] for k, v in history.items()}
+    executed = _run(policy, [step, step], m, noise)
+    first = policy.predict_action_chunk(history, noise=noise)
+    leftover = first[:, delay + m :]
+    second = policy.predict_action_chunk(
+        history, noise=noise, inference_delay=delay, prev_chunk_left_over=leftover
+    )
+    torch.testing.assert_close(executed[:, :m], first[:, delay : delay + m])
+    torch.testing.assert_close(executed[:, m:], second[:, delay : delay + m])
+    # control: unguided, the same observation and noise give the first chunk again
+    assert (second[:, delay : delay + m] - first[:, delay : delay + m]).abs().amax() > 1e-3
+
+
+def test_guided_select_action_is_equivariant():
+    """Moving the scene moves every executed action of a guided episode (two chunks, the second
+    guided toward the first's leftover, which moved with it)."""
+    policy, batch, noise, _ = _actionflow()
+    m = 2
+    policy = _guided(policy, m, delay=1)
+    gen = torch.Generator().manual_seed(10)
+    r_d, p_d = g.random_rotation(generator=gen), torch.randn(3, generator=gen)
+    obs, moved = _observations(batch), _observations(transform_batch(_observations(batch), r_d, p_d))
+
+    def steps(o):
+        return [{k: v[:, i] for k, v in o.items()} for i in range(N_OBS)]
+
+    a = _run(policy, steps(obs), m, noise)
+    policy.reset()
+    a_t = _run(policy, steps(moved), m, noise)
+    assert _equivariance_error(a, a_t, r_d, p_d) <= 1e-4
+    # control: the moved episode's first chunk guided toward the unmoved episode's leftover
+    policy.reset()
+    _run(policy, steps(obs), m, noise)
+    unmoved = policy._previous_chunk
+    policy.reset()
+    policy._previous_chunk = unmoved
+    a_c = _run(policy, steps(moved), m, noise)
+    assert _equivariance_error(a, a_c, r_d, p_d) > 1e-2
+
+
+def test_guidance_option_is_refused_with_the_midpoint_solver():
+    from .actionflow.helpers import small_config
+
+    with pytest.raises(PolicyConfigError, match="`guide_to_previous_chunk` steers Euler steps"):
+        small_config(guide_to_previous_chunk=True, solver="midpoint")
+    with pytest.raises(PolicyConfigError, match="`guide_to_previous_chunk` must be true or false"):
+        small_config(guide_to_previous_chunk="yes")
+    small_config(guide_to_previous_chunk=True)

@@ -141,7 +141,8 @@ class ActionflowConfig(PreTrainedConfig, RealTimeExecutionConfig):
     Execution in real time (App. G), applied by ``select_action``: the fields of
     :class:`lerobot_actionflow.policies.execution.RealTimeExecutionConfig`
     (``execution_delay_steps``, ``execution_delay_s``, ``measure_inference_delay``,
-    ``control_period_s``, ``target_smoothing``); the defaults keep the plain behaviour.
+    ``control_period_s``, ``target_smoothing``, ``guide_to_previous_chunk``); the defaults keep
+    the plain behaviour.
     The paper's "execute two actions, then re-plan" is ``n_action_steps=2``. For real-time
     chunking (``lerobot-rollout --inference.type=rtc``) see ``predict_action_chunk``.
     """

@@ -31,12 +31,13 @@ from lerobot_actionflow.policies.actionflow.configuration_actionflow import Acti
 from lerobot_actionflow.policies.actionflow.exported import EXPORT_DIR, ExportedSamplers
 from lerobot_actionflow.policies.execution import (
     ExecutionOptions,
+    PreviousChunk,
     RTCGuidance,
     TargetSmoother,
     history_with_step,
+    plan_chunk,
     rtc_config_of,
     rtc_guidance,
-    timed,
 )
 from lerobot_actionflow.policies.flow_options import check_rtc_solver, check_shortcut_sampling
 from lerobot_actionflow.policies.inputs import check_num_inference_steps, check_observation
@@ -119,6 +120,7 @@ class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
         self._queues = {k: deque(maxlen=self.config.n_obs_steps) for k in keys}
         self._queues[ACTION_KEY] = deque(maxlen=self.config.n_action_steps)
         self._smoother = TargetSmoother(self.config.target_smoothing)
+        self._previous_chunk = PreviousChunk()
 
     def forward(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict[str, float]]:
         """Flow-matching loss on a batch with ``observation.*`` ``(B, n_obs_steps, ...)`` and
@@ -243,6 +245,19 @@ class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
                 a leftover with ``solver="midpoint"`` (the guidance integrates with Euler).
         """
         obs = self._observation_history(batch)
+        rtc = {"inference_delay": inference_delay, "execution_horizon": execution_horizon}
+        return self._chunk(obs, noise, num_inference_steps, prev_chunk_left_over=prev_chunk_left_over, **rtc)
+
+    def _chunk(
+        self,
+        obs: dict[str, Tensor],
+        noise: se3_flow.LocalNoise | None,
+        num_inference_steps: int | None,
+        inference_delay: int | None = None,
+        prev_chunk_left_over: Tensor | None = None,
+        execution_horizon: int | None = None,
+    ) -> Tensor:
+        """:meth:`predict_action_chunk` on a checked history ``(B, n_obs_steps, ...)``."""
         rtc = rtc_config_of(self.config)
         if prev_chunk_left_over is None or rtc is None:
             return self._predict(obs, noise, num_inference_steps)
@@ -417,12 +432,15 @@ class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
         self._queues = populate_queues(self._queues, step)
         if not self._queues[ACTION_KEY]:
             history = {k: torch.stack(list(q), dim=1) for k, q in self._queues.items() if k != ACTION_KEY}
-            options = ExecutionOptions.from_config(self.config)
-            actions, seconds = timed(
-                lambda: self._predict(history, noise, None), history[POSES_KEY].device, options.measure
+            actions = plan_chunk(
+                lambda h, **rtc: self._chunk(h, noise, None, **rtc),
+                history,
+                ExecutionOptions.from_config(self.config),
+                self._previous_chunk,
+                self.config.n_action_steps,
+                history[POSES_KEY].device,
             )
-            window = options.window(actions.shape[1], self.config.n_action_steps, seconds)
-            self._queues[ACTION_KEY].extend(actions[:, window].transpose(0, 1))
+            self._queues[ACTION_KEY].extend(actions.transpose(0, 1))
         return self._smoother(self._queues[ACTION_KEY].popleft())
 
     # -- internals ---------------------------------------------------------------------------------

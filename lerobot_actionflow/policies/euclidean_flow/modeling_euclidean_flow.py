@@ -35,12 +35,13 @@ from lerobot_actionflow.policies.euclidean_flow.backbones import make_backbone
 from lerobot_actionflow.policies.euclidean_flow.configuration_euclidean_flow import EuclideanFlowConfig
 from lerobot_actionflow.policies.execution import (
     ExecutionOptions,
+    PreviousChunk,
     RTCGuidance,
     TargetSmoother,
     history_with_step,
+    plan_chunk,
     rtc_config_of,
     rtc_guidance,
-    timed,
 )
 from lerobot_actionflow.policies.flow_options import check_rtc_solver
 from lerobot_actionflow.policies.inputs import check_num_inference_steps, check_observation
@@ -124,6 +125,7 @@ class EuclideanFlowPolicy(StrictLoading, PreTrainedPolicy):
         n = self.config.n_obs_steps
         self._queues = {ACTION: deque(maxlen=self.config.n_action_steps)}
         self._smoother = TargetSmoother(self.config.target_smoothing)
+        self._previous_chunk = PreviousChunk()
         if self.config.robot_state_feature is not None:
             self._queues[OBS_STATE] = deque(maxlen=n)
         if self.config.read_env_state_feature is not None:
@@ -248,6 +250,22 @@ class EuclideanFlowPolicy(StrictLoading, PreTrainedPolicy):
         LeRobot's engines may pass are ignored.
         """
         obs = self._observation_history(batch)
+        rtc = {"inference_delay": inference_delay, "execution_horizon": execution_horizon}
+        return self._chunk(
+            obs, noise, num_inference_steps, time_spacing, prev_chunk_left_over=prev_chunk_left_over, **rtc
+        )
+
+    def _chunk(
+        self,
+        obs: dict[str, Tensor],
+        noise: Tensor | None,
+        num_inference_steps: int | None,
+        time_spacing: str | None = None,
+        inference_delay: int | None = None,
+        prev_chunk_left_over: Tensor | None = None,
+        execution_horizon: int | None = None,
+    ) -> Tensor:
+        """:meth:`predict_action_chunk` on a prepared history ``(B, n_obs_steps, ...)``."""
         rtc = rtc_config_of(self.config)
         if prev_chunk_left_over is None or rtc is None:
             return self._from_current_step(self.sample_chunk(obs, noise, num_inference_steps, time_spacing))
@@ -344,10 +362,13 @@ class EuclideanFlowPolicy(StrictLoading, PreTrainedPolicy):
         self._queues = populate_queues(self._queues, obs)
         if not self._queues[ACTION]:
             history = {k: torch.stack(list(q), dim=1) for k, q in self._queues.items() if k != ACTION}
-            options = ExecutionOptions.from_config(self.config)
-            device = next(self.velocity_net.parameters()).device
-            chunk, seconds = timed(lambda: self.sample_chunk(history, noise=noise), device, options.measure)
-            actions = self._from_current_step(chunk)
-            window = options.window(actions.shape[1], self.config.n_action_steps, seconds)
-            self._queues[ACTION].extend(actions[:, window].transpose(0, 1))
+            actions = plan_chunk(
+                lambda h, **rtc: self._chunk(h, noise, None, **rtc),
+                history,
+                ExecutionOptions.from_config(self.config),
+                self._previous_chunk,
+                self.config.n_action_steps,
+                next(self.velocity_net.parameters()).device,
+            )
+            self._queues[ACTION].extend(actions.transpose(0, 1))
         return self._smoother(self._queues[ACTION].popleft())
