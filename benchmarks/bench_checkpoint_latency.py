@@ -11,6 +11,10 @@ all see the same machine load; the ratios between cells are the robust figure on
 machine. The observation has poses, state and the task's cameras, no point cloud: a checkpoint
 that reads a cloud is not timed by this script.
 
+``--guided NAME ...`` also times those flow checkpoints as ``guide_to_previous_chunk`` samples
+every chunk after the first (cells ``<name>+guided/IS<n>``): guided toward the unexecuted tail
+of a chunk of the same observation, with no delay (:class:`GuidedChunks`).
+
     python benchmarks/bench_checkpoint_latency.py --task Lift --inference-steps 1 2 4 10 \\
         --checkpoints default=/work/study/Lift/.../pretrained_model shortcut=/.../pretrained_model \\
             solver_midpoint=/work/study/Lift/.../pretrained_model --midpoint solver_midpoint \\
@@ -75,6 +79,27 @@ def fill_history(policy, batch: dict) -> dict:
     return {**batch, **{k: q[-1] for k, q in history.items() if k not in batch and k != ACTION_KEY and q}}
 
 
+class GuidedChunks:
+    """A flow policy whose chunks are all guided toward one leftover, as
+    ``guide_to_previous_chunk`` guides every chunk after an episode's first at no delay:
+    ``predict_action_chunk(batch, inference_delay=0, prev_chunk_left_over=leftover)``, where
+    ``leftover`` is the tail past ``n_action_steps`` of a plain chunk of ``batch``."""
+
+    def __init__(self, policy, batch: dict):
+        if not (hasattr(policy, "supports_rtc") and policy.supports_rtc()):
+            raise ValueError(f"policy type {policy.config.type!r} has no guided sampler (supports_rtc)")
+        if getattr(policy.config, "solver", "euler") != "euler":
+            raise ValueError(
+                f"the guidance steers Euler steps, the checkpoint's solver is {policy.config.solver!r}"
+            )
+        self.policy, self.config = policy, policy.config
+        with torch.inference_mode():
+            self.leftover = policy.predict_action_chunk(batch)[:, policy.config.n_action_steps :]
+
+    def predict_action_chunk(self, batch: dict):
+        return self.policy.predict_action_chunk(batch, inference_delay=0, prev_chunk_left_over=self.leftover)
+
+
 def time_cells(
     policies: dict, steps: list[int], warmup: int, repeats: int, solvers: dict[str, str] | None = None
 ) -> tuple[dict[str, dict], dict[str, str]]:
@@ -132,6 +157,9 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument(
         "--midpoint", nargs="*", default=[], help="names sampled with midpoint steps (IS = 2 x steps)"
     )
+    ap.add_argument(
+        "--guided", nargs="*", default=[], help="names also timed with guidance toward a previous chunk"
+    )
     ap.add_argument("--inference-steps", type=int, nargs="+", default=[1, 2, 4, 10])
     ap.add_argument("--repeats", type=int, default=50)
     ap.add_argument("--warmup", type=int, default=5)
@@ -151,13 +179,22 @@ def main(argv: list[str] | None = None) -> dict:
         if name in named:
             raise SystemExit(f"--checkpoints: the name {name!r} is given twice")
         named[name] = str(Path(path).resolve())  # as latency_sweep.py --real_latency matches them
-    if set(args.midpoint) - set(named):
+    for flag, names in (("--midpoint", args.midpoint), ("--guided", args.guided)):
+        if set(names) - set(named):
+            raise SystemExit(f"{flag} {sorted(set(names) - set(named))}: not among the --checkpoints names")
+    if set(args.midpoint) & set(args.guided):
         raise SystemExit(
-            f"--midpoint {sorted(set(args.midpoint) - set(named))}: not among the --checkpoints names"
+            f"--guided {sorted(set(args.midpoint) & set(args.guided))}: the guidance steers Euler steps, "
+            "not midpoint ones"
         )
     torch.set_num_threads(args.threads)
     register_all()
     policies = {name: load(path, args.task) for name, path in named.items()}
+    for name in args.guided:
+        try:
+            policies[f"{name}+guided"] = (GuidedChunks(*policies[name]), policies[name][1])
+        except ValueError as e:
+            raise SystemExit(f"--guided {name}: {e}") from None
     report = {
         "date": time.strftime("%Y-%m-%d"),
         "torch": torch.__version__,
@@ -168,6 +205,7 @@ def main(argv: list[str] | None = None) -> dict:
         "repeats": args.repeats,
         "warmup": args.warmup,
         "midpoint": args.midpoint,
+        "guided": args.guided,
     }
     try:
         timed, skipped = time_cells(

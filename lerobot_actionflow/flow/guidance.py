@@ -109,11 +109,13 @@ def inpaint_sample(
         the chunk at ``t = 1``; its frozen actions are exactly ``target``'s.
     """
     x = x0
+    any_frozen = bool(frozen.any())  # none at no delay: skip the frozen path's Exp/Log
     for k in range(times.shape[0] - 1):
         t, t_next = times[k], times[k + 1]
         v = guided_velocity(x, velocity(x, k), t, target, weights)
         x = euler_step(x, v, t_next - t)
-        x = select(frozen, geodesic_blend(x0, target, t_next), x)
+        if any_frozen:
+            x = select(frozen, geodesic_blend(x0, target, t_next), x)
     return select(frozen, target, x)
 
 

@@ -101,3 +101,38 @@ def test_a_checkpoint_without_a_name_or_directory_is_refused(tmp_path):
         bench.main(["--task", "Lift", "--checkpoints", f"a={tmp_path}", "--repeats", "0"])
     with pytest.raises(SystemExit, match=r"--midpoint \['b'\]"):
         bench.main(["--task", "Lift", "--checkpoints", f"a={tmp_path}", "--midpoint", "b"])
+
+
+class RecordingFlow(CountingPolicy):
+    """Stands in for a flow policy with RTC: returns a chunk and records the guidance it got."""
+
+    def __init__(self):
+        super().__init__("euler")
+        self.config.n_action_steps = 3
+        self.calls: list[dict] = []
+
+    def supports_rtc(self):
+        return True
+
+    def predict_action_chunk(self, batch, **kw):
+        import torch
+
+        self.calls.append(kw)
+        return torch.arange(8.0).reshape(1, 8, 1).expand(1, 8, 10)
+
+
+def test_guided_cells_guide_every_chunk_toward_the_tail_of_a_plain_one():
+    policy = RecordingFlow()
+    guided = bench.GuidedChunks(policy, {})
+    assert policy.calls == [{}]  # the plain chunk whose tail is the leftover
+    cells, _ = bench.time_cells({"f": (policy, {}), "f+guided": (guided, {})}, [2], warmup=0, repeats=2)
+    assert sorted(cells) == ["f+guided/IS2", "f/IS2"]
+    plain, with_guidance = policy.calls[1::2], policy.calls[2::2]
+    assert plain == [{}, {}] and all(kw["inference_delay"] == 0 for kw in with_guidance)
+    assert all(kw["prev_chunk_left_over"][0, :, 0].tolist() == [3, 4, 5, 6, 7] for kw in with_guidance)
+    with pytest.raises(ValueError, match="no guided sampler"):  # LeRobot's diffusion has none
+        bench.GuidedChunks(CountingDiffusion(trained_steps=10), {})
+    midpoint = RecordingFlow()
+    midpoint.config.solver = "midpoint"
+    with pytest.raises(ValueError, match="steers Euler steps"):
+        bench.GuidedChunks(midpoint, {})
