@@ -83,7 +83,9 @@ def configure_execution(
 
     ``plain`` / ``rtc``: no skipping, no smoothing, the trained ``n_action_steps`` (``rtc``
     re-plans after as many). ``scheme``: skip from ``latency_s`` (``None``: the measured time),
-    ``scheme.action_steps`` per chunk, smoothing ``scheme.smoothing``. Takes effect at the next
+    ``scheme.action_steps`` per chunk, smoothing ``scheme.smoothing``. No mode lets
+    ``select_action`` guide toward the previous chunk (``guide_to_previous_chunk``, whatever the
+    checkpoint's config says): ``rtc`` guides in its own loop. Takes effect at the next
     ``policy.reset()`` (LeRobot's rollout calls it).
 
     Raises:
@@ -106,6 +108,7 @@ def configure_execution(
     cfg.execution_delay_s = float(latency_s or 0.0) if scheme_on else 0.0
     cfg.measure_inference_delay = scheme_on and latency_s is None
     cfg.control_period_s = control_period_s
+    cfg.guide_to_previous_chunk = False
     cfg.validate_execution()
 
 

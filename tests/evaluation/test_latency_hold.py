@@ -188,7 +188,8 @@ def test_pending_hold_of_a_wrong_shape_is_refused():
 def test_scheme_configures_the_policy_to_skip_what_the_env_holds(latency_s, period):
     from lerobot_actionflow.policies.actionflow.configuration_actionflow import ActionflowConfig
 
-    policy = SimpleNamespace(config=ActionflowConfig(horizon=16, n_action_steps=8), supports_rtc=lambda: True)
+    config = ActionflowConfig(horizon=16, n_action_steps=8, guide_to_previous_chunk=True)
+    policy = SimpleNamespace(config=config, supports_rtc=lambda: True)
     configure_execution(policy, "scheme", latency_s, period, Scheme(2, 0.5), trained_action_steps=8)
     window = ExecutionOptions.from_config(policy.config).window(16, policy.config.n_action_steps)
     assert window.start == min(hold_steps(latency_s, period), 15)
@@ -196,6 +197,7 @@ def test_scheme_configures_the_policy_to_skip_what_the_env_holds(latency_s, peri
     configure_execution(policy, "plain", latency_s, period, Scheme(2, 0.5), trained_action_steps=8)
     window = ExecutionOptions.from_config(policy.config).window(16, policy.config.n_action_steps)
     assert (window.start, window.stop, policy.config.target_smoothing) == (0, 8, 1.0)
+    assert not policy.config.guide_to_previous_chunk  # a guided checkpoint's chunks are plain here
 
 
 def test_scheme_needs_a_flow_policy():
