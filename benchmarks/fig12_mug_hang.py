@@ -248,7 +248,8 @@ def main(argv: list[str] | None = None) -> int:
                  f"--inference_steps=[{args.inference_steps}]", f"--eval.n_episodes={args.eval_episodes}",
                  f"--eval.batch_size={min(args.eval_batch_size, args.eval_episodes)}",
                  f"--eval.use_async_envs={str(args.eval_async).lower()}",
-                 f"--seed={args.eval_seed}", "--device=cpu", f"--output_dir={cell_dir}"],
+                 f"--seed={args.eval_seed}", "--device=cpu", f"--output_dir={cell_dir}",
+                 "--guide_to_previous_chunk=false"],  # the protocol of the stored cells
                 env, out / "logs" / f"eval_{name}_{variant}.log",
             )  # fmt: skip
             (row,) = json.loads((cell_dir / "sweep_results.json").read_text())

@@ -107,7 +107,9 @@ def _sweep(
         run_logged(
             [sys.executable, "-m", "lerobot_actionflow.evaluation.sweep",
              f"--checkpoints=[{','.join(str(c) for c in checkpoints)}]",
-             "--env.type=actionflow", f"--env.task={task}", *_camera_env(args), *extra,
+             "--env.type=actionflow", f"--env.task={task}", *_camera_env(args),
+             # the protocol of every stored cell: unguided chunks unless a setting's flags say so
+             "--guide_to_previous_chunk=false", *extra,
              *([f"--env.episode_length={args.episode_length}"] if args.episode_length else []),
              f"--inference_steps=[{','.join(map(str, steps))}]",
              f"--eval.n_episodes={args.eval_episodes}", f"--eval.batch_size={args.eval_batch_size}",

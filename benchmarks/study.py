@@ -104,6 +104,13 @@ ABLATIONS: dict[str, Setting] = {
         trained_as="default",
         sampling=("--solver=midpoint",),
     ),
+    "guided": Setting(
+        "actionflow",
+        (),
+        "the noise_concentrated runs, each chunk guided toward the previous one (the package default)",
+        trained_as="noise_concentrated",
+        sampling=("--guide_to_previous_chunk=true",),
+    ),
     "shortcut": Setting(
         "actionflow",
         ("--policy.few_step_objective=shortcut",),

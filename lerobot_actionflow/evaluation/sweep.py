@@ -42,6 +42,7 @@ from lerobot.envs.configs import EnvConfig
 
 from lerobot_actionflow.evaluation.provenance import DIGEST_KEY, weights_digest
 from lerobot_actionflow.flow.schedules import SOLVERS, network_calls
+from lerobot_actionflow.policies.execution import guides_chunks
 
 
 @dataclass
@@ -57,6 +58,9 @@ class SweepConfig:
     time_spacing: str | None = None
     # actionflow / euclidean_flow only: "euler" or "midpoint"; None keeps each checkpoint's setting.
     solver: str | None = None
+    # actionflow / euclidean_flow only: select_action's guidance toward the previous chunk
+    # (`guide_to_previous_chunk`); None keeps each checkpoint's setting (default: on with Euler).
+    guide_to_previous_chunk: bool | None = None
     eval: EvalConfig = field(default_factory=lambda: EvalConfig(n_episodes=50, batch_size=10))
     seed: int = 1000
     # None: the checkpoint's device if available, else what LeRobot picks.
@@ -72,7 +76,9 @@ def set_inference_steps(
     ``actionflow`` / ``euclidean_flow``: ``K = num_steps`` steps with ``solver="euler"``; with
     ``solver="midpoint"`` (two calls per step) ``K = num_steps / 2``, and an odd ``num_steps`` is
     refused. ``time_spacing`` and ``solver`` replace the checkpoint's when given. The name is
-    ``<solver>-<time spacing>``. ``diffusion``: DDIM with ``num_steps`` steps, or DDPM when
+    ``<solver>-<time spacing>``, with ``-guided`` when ``select_action`` guides each chunk toward
+    the previous one (:func:`~lerobot_actionflow.policies.execution.guides_chunks`).
+    ``diffusion``: DDIM with ``num_steps`` steps, or DDPM when
     ``num_steps`` equals the trained ``num_train_timesteps`` (built from the trained noise schedule
     with ``from_config``, so betas and clipping are unchanged).
     """
@@ -94,7 +100,8 @@ def set_inference_steps(
         policy.config.num_inference_steps = num_steps // calls_per_step
         if time_spacing is not None:
             policy.config.time_spacing = time_spacing
-        return f"{solver}-{policy.config.time_spacing}"
+        guided = "-guided" if guides_chunks(policy.config) else ""
+        return f"{solver}-{policy.config.time_spacing}{guided}"
     if kind == "diffusion":
         from diffusers import DDIMScheduler, DDPMScheduler
 
@@ -129,6 +136,12 @@ def _evaluate_checkpoint(cfg: SweepConfig, checkpoint: str) -> list[dict]:
         policy_cfg.device = cfg.device
     policy = make_policy(cfg=policy_cfg, env_cfg=cfg.env)
     policy.eval()
+    if cfg.guide_to_previous_chunk is not None:
+        if not hasattr(policy.config, "guide_to_previous_chunk"):
+            if cfg.guide_to_previous_chunk:
+                raise ValueError(f"policy type {policy_cfg.type!r} has no guidance toward the previous chunk")
+        else:
+            policy.config.guide_to_previous_chunk = cfg.guide_to_previous_chunk
     device = str(policy.config.device)
     preprocessor, postprocessor = make_pre_post_processors(
         policy_cfg=policy_cfg,

@@ -1,7 +1,7 @@
 """How a policy's action chunks are executed in real time (paper App. G), shared by both policies.
 
-Three options of ``select_action``, all off by default (the fields of
-:class:`RealTimeExecutionConfig`, a base of both policies' configs):
+Four options of ``select_action`` (the fields of :class:`RealTimeExecutionConfig`, a base of
+both policies' configs); only the guidance toward the previous chunk is on by default:
 
 * **Latency-aware skipping.** A chunk predicted from the observation of step ``n`` holds the
   actions of steps ``n, n + 1, ...`` (it starts at the current step). If the chunk becomes
@@ -82,7 +82,8 @@ def execution_window(chunk_len: int, skipped: int, n_action_steps: int) -> slice
 @dataclass
 class RealTimeExecutionConfig:
     """The real-time execution fields of a policy config (App. G), shared by both flow policies;
-    the defaults keep the plain behaviour (no skipping, no smoothing).
+    by default nothing is skipped or smoothed, and each chunk after an episode's first is guided
+    toward the previous one (with the Euler solver).
 
     Args:
         execution_delay_steps: a fixed inference delay in control steps; the actions of the new
@@ -97,10 +98,12 @@ class RealTimeExecutionConfig:
         guide_to_previous_chunk: sample each new chunk with real-time chunking's guidance
             (``predict_action_chunk(inference_delay=d, prev_chunk_left_over=...)``, weights from
             ``rtc_config``, else LeRobot's defaults) toward the previous chunk's actions from the
-            current step on; ``d`` is the skip expected from the fixed delay plus the previous
+            current step on (the evidence for the default: benchmarks/RESULTS.md, "Guidance
+            toward the previous chunk"); ``d`` is the skip expected from the fixed delay plus the previous
             chunk's measured time. What ``lerobot-rollout --inference.type=rtc`` does, inside
-            ``select_action`` (so ``lerobot-eval`` and any loop get it). Needs ``solver="euler"``;
-            the guided sampler runs eagerly (no compiled or exported sampler).
+            ``select_action`` (so ``lerobot-eval`` and any loop get it). The guided sampler runs
+            eagerly (a compiled or exported sampler serves only unguided chunks). None: on with
+            ``solver="euler"``, off with ``"midpoint"``; True with ``"midpoint"`` is refused.
 
     The paper's "execute two actions, then re-plan" is the policy's ``n_action_steps=2``.
     """
@@ -110,7 +113,7 @@ class RealTimeExecutionConfig:
     measure_inference_delay: bool = False
     control_period_s: float | None = None
     target_smoothing: float = 1.0
-    guide_to_previous_chunk: bool = False
+    guide_to_previous_chunk: bool | None = None
 
     def validate_execution(self) -> None:
         """Refuse execution options that cannot work (:class:`PolicyConfigError`)."""
@@ -140,15 +143,23 @@ class RealTimeExecutionConfig:
             f"`target_smoothing` must be in (0, 1] (1: no smoothing), got {alpha!r}",
         )
         require(
-            isinstance(self.guide_to_previous_chunk, bool),
-            f"`guide_to_previous_chunk` must be true or false, got {self.guide_to_previous_chunk!r}",
+            self.guide_to_previous_chunk is None or isinstance(self.guide_to_previous_chunk, bool),
+            f"`guide_to_previous_chunk` must be true, false or null (on with the Euler solver), got "
+            f"{self.guide_to_previous_chunk!r}",
         )
         solver = getattr(self, "solver", "euler")
         require(
-            not self.guide_to_previous_chunk or solver == "euler",
+            self.guide_to_previous_chunk is not True or solver == "euler",
             f"`guide_to_previous_chunk` steers Euler steps, but the policy's solver is {solver!r}: set "
             "--policy.solver=euler (with twice the num_inference_steps for the same network calls)",
         )
+
+
+def guides_chunks(config: Any) -> bool:
+    """Whether ``select_action`` guides each chunk toward the previous one: the config's
+    ``guide_to_previous_chunk``, or, when None, whether it samples with Euler steps."""
+    flag = getattr(config, "guide_to_previous_chunk", None)
+    return getattr(config, "solver", "euler") == "euler" if flag is None else bool(flag)
 
 
 @dataclass(frozen=True)
@@ -170,7 +181,7 @@ class ExecutionOptions:
             measure=config.measure_inference_delay,
             control_period_s=config.control_period_s,
             smoothing=config.target_smoothing,
-            guide=config.guide_to_previous_chunk,
+            guide=guides_chunks(config),
         )
 
     def delay_in_steps(self, measured_s: float = 0.0) -> float:

@@ -222,11 +222,30 @@ def test_guided_select_action_is_equivariant():
     assert _equivariance_error(a, a_c, r_d, p_d) > 1e-2
 
 
-def test_guidance_option_is_refused_with_the_midpoint_solver():
+def test_guidance_is_on_by_default_with_euler_and_refused_with_midpoint():
+    from lerobot_actionflow.policies.euclidean_flow.configuration_euclidean_flow import EuclideanFlowConfig
+    from lerobot_actionflow.policies.execution import guides_chunks
+
     from .actionflow.helpers import small_config
 
+    assert guides_chunks(small_config()) and guides_chunks(EuclideanFlowConfig())
+    assert not guides_chunks(small_config(solver="midpoint"))  # the default follows the solver
+    assert not guides_chunks(small_config(guide_to_previous_chunk=False))
     with pytest.raises(PolicyConfigError, match="`guide_to_previous_chunk` steers Euler steps"):
         small_config(guide_to_previous_chunk=True, solver="midpoint")
-    with pytest.raises(PolicyConfigError, match="`guide_to_previous_chunk` must be true or false"):
+    with pytest.raises(PolicyConfigError, match="`guide_to_previous_chunk` must be true, false or null"):
         small_config(guide_to_previous_chunk="yes")
-    small_config(guide_to_previous_chunk=True)
+
+
+@POLICIES
+def test_select_action_guides_by_default(make):
+    """A default config guides its second chunk; ``guide_to_previous_chunk=False`` does not."""
+    policy, batch, noise, _ = make()
+    step = {k: v[:, 0] for k, v in _observations(batch).items()}
+    m = policy.config.n_action_steps
+    guided = _run(policy.reset() or policy, [step, step], m, noise)
+    policy.config.guide_to_previous_chunk = False
+    policy.reset()
+    plain = _run(policy, [step, step], m, noise)
+    torch.testing.assert_close(guided[:, :m], plain[:, :m])  # the first chunk has no previous one
+    assert (guided[:, m:] - plain[:, m:]).abs().amax() > 1e-3

@@ -141,8 +141,9 @@ class ActionflowConfig(PreTrainedConfig, RealTimeExecutionConfig):
     Execution in real time (App. G), applied by ``select_action``: the fields of
     :class:`lerobot_actionflow.policies.execution.RealTimeExecutionConfig`
     (``execution_delay_steps``, ``execution_delay_s``, ``measure_inference_delay``,
-    ``control_period_s``, ``target_smoothing``, ``guide_to_previous_chunk``); the defaults keep
-    the plain behaviour.
+    ``control_period_s``, ``target_smoothing``, ``guide_to_previous_chunk``). By default
+    nothing is skipped or smoothed, and each chunk after an episode's first is guided toward the
+    previous one (with the Euler solver).
     The paper's "execute two actions, then re-plan" is ``n_action_steps=2``. For real-time
     chunking (``lerobot-rollout --inference.type=rtc``) see ``predict_action_chunk``.
     """

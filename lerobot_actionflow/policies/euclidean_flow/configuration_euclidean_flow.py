@@ -82,7 +82,7 @@ class EuclideanFlowConfig(PreTrainedConfig, RealTimeExecutionConfig):
 
     Execution in real time (App. G), applied by ``select_action``: the fields of
     :class:`lerobot_actionflow.policies.execution.RealTimeExecutionConfig`, as in ``actionflow``
-    (the defaults: no skipping, no smoothing, no guidance toward the previous chunk).
+    (the defaults: no skipping, no smoothing, guidance toward the previous chunk with Euler).
     Smoothing blends rotations along the SE(3) geodesic, so it needs actions that are absolute
     EEF poses ``[x y z rot6d gripper]`` in their own units: a 10-D action with
     ``normalization_mapping["ACTION"] = IDENTITY``. With min-max normalised actions, apply

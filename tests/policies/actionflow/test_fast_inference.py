@@ -69,6 +69,6 @@ def test_inference_step_sweep_sets_actionflow_euler_steps():
     calls = []
     original = policy.network.velocity
     policy.network.velocity = lambda *a, **k: calls.append(1) or original(*a, **k)
-    assert set_inference_steps(policy, 3, "exponential") == "euler-exponential"
+    assert set_inference_steps(policy, 3, "exponential") == "euler-exponential-guided"  # the default
     policy.predict_action_chunk(random_batch(policy.config, 1, torch.Generator().manual_seed(0)))
     assert len(calls) == 3

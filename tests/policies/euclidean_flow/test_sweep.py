@@ -163,7 +163,7 @@ def test_sweep_reports_success_per_inference_step(bimodal_checkpoint, tmp_path):
     assert all(r["n_episodes"] == 40 for r in rows)
     assert by[("euclidean_flow", 1)]["pc_success"] <= 20.0, by  # one Euler step: the average
     assert by[("euclidean_flow", 10)]["pc_success"] >= 70.0, by  # ten steps: one of the modes
-    assert by[("euclidean_flow", 10)]["sampler"] == "euler-exponential"
+    assert by[("euclidean_flow", 10)]["sampler"] == "euler-exponential-guided"
     assert by[("diffusion", 10)]["sampler"] == "ddim"
     saved = (tmp_path / "sweep" / "sweep_results.json").read_text()
     assert '"inference_steps": 10' in saved
@@ -181,7 +181,7 @@ def test_the_solver_is_a_sampling_choice_counted_in_network_calls():
     for steps, solver, name in [
         (4, "midpoint", "midpoint-exponential"),
         (4, None, "midpoint-exponential"),
-        (3, "euler", "euler-exponential"),
+        (3, "euler", "euler-exponential-guided"),  # guided by default with Euler steps
     ]:
         calls.clear()
         assert set_inference_steps(policy, steps, solver=solver) == name
