@@ -44,6 +44,7 @@ FEW_STEP = (
     "time_logit_normal",
     "time_beta_noise",
     "noise_concentrated",
+    "guided",
     "noise_sigma_0.05",
     "noise_sigma_0.2",
     "shortcut",
@@ -154,12 +155,21 @@ def format_targets(checks: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def latency_name(setting: str) -> str:
+    """The name of ``setting``'s cells in a latency report: a sampling-only setting that guides
+    each chunk toward the previous one is timed as its runs' guided chunks
+    (``bench_checkpoint_latency.py --guided <trained_as>``: ``<trained_as>+guided``)."""
+    spec = ABLATIONS.get(setting)
+    if spec is not None and spec.trained_as and "--guide_to_previous_chunk=true" in spec.sampling:
+        return f"{spec.trained_as}+guided"
+    return setting
+
+
 def latency_row(report: dict | None, setting: str, steps: list[int]) -> list[str]:
     """Median chunk latency (ms) of ``setting`` at each IS, '-' where not measured."""
     cells = (report or {}).get("latency_batch1", {})
-    return [
-        f"{cells[f'{setting}/IS{k}']['median_ms']:.1f}" if f"{setting}/IS{k}" in cells else "-" for k in steps
-    ]
+    name = latency_name(setting)
+    return [f"{cells[f'{name}/IS{k}']['median_ms']:.1f}" if f"{name}/IS{k}" in cells else "-" for k in steps]
 
 
 def format_task(task: str, entry: dict, latency: dict | None) -> str:

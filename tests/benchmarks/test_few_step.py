@@ -130,3 +130,10 @@ def test_a_reference_trained_on_another_protocol_gets_no_verdict():
 def test_a_task_without_results_is_named(tmp_path):
     with pytest.raises(SystemExit, match="StackThree_D0"):
         few_step.main(["--tasks", "StackThree_D0", "--results", str(tmp_path)])
+
+
+def test_a_guided_setting_reads_its_runs_guided_latency():
+    report = {"latency_batch1": {"noise_concentrated/IS2": {"median_ms": 13.0},
+                                 "noise_concentrated+guided/IS2": {"median_ms": 20.0}}}  # fmt: skip
+    assert few_step.latency_row(report, "guided", [2, 10]) == ["20.0", "-"]
+    assert few_step.latency_row(report, "noise_concentrated", [2]) == ["13.0"]
