@@ -242,23 +242,22 @@ class PreviousChunk:
 def plan_chunk(
     predict: Callable[..., Tensor],
     history: dict[str, Tensor],
-    options: ExecutionOptions,
+    config: RealTimeExecutionConfig,
     previous: PreviousChunk,
-    n_action_steps: int,
-    device: torch.device,
 ) -> Tensor:
-    """One chunk boundary of ``select_action``: ``predict(history, inference_delay=...,
-    prev_chunk_left_over=...)`` (the policy's ``predict_action_chunk``; a leftover only with
-    ``options.guide``), timed, and its execution window; returns the actions to queue
-    ``(B, m, A)``."""
+    """One chunk boundary of ``select_action`` with ``config``'s execution options:
+    ``predict(history, inference_delay=..., prev_chunk_left_over=...)`` (the policy's
+    ``predict_action_chunk`` on a checked history; a leftover only when it guides), timed, and its
+    execution window of ``config.n_action_steps``; returns the actions to queue ``(B, m, A)``."""
+    options = ExecutionOptions.from_config(config)
     leftover = previous.leftover() if options.guide else None
     delay = num_skipped(options.delay_in_steps(previous.seconds)) if leftover is not None else None
     actions, seconds = timed(
         lambda: predict(history, inference_delay=delay, prev_chunk_left_over=leftover),
-        device,
+        next(iter(history.values())).device,
         options.measure,
     )
-    window = options.window(actions.shape[1], n_action_steps, seconds)
+    window = options.window(actions.shape[1], config.n_action_steps, seconds)
     previous.store(actions, window, seconds)
     return actions[:, window]
 

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import logging
 from collections import deque
+from functools import partial
 from pathlib import Path
 
 import torch
@@ -30,7 +31,6 @@ from lerobot_actionflow.nn.image_encoder import ResNet18Encoder
 from lerobot_actionflow.policies.actionflow.configuration_actionflow import ActionflowConfig
 from lerobot_actionflow.policies.actionflow.exported import EXPORT_DIR, ExportedSamplers
 from lerobot_actionflow.policies.execution import (
-    ExecutionOptions,
     PreviousChunk,
     RTCGuidance,
     TargetSmoother,
@@ -425,21 +425,16 @@ class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
         repeated at the start) and re-plans a chunk once ``n_action_steps`` have been used.
 
         With the config's execution options (:mod:`lerobot_actionflow.policies.execution`), the
-        actions whose time passed during the inference delay are skipped, and the returned target
-        is smoothed exponentially along SE(3) geodesics."""
+        actions whose time passed during the inference delay are skipped, the returned target
+        is smoothed exponentially along SE(3) geodesics, and each chunk after the first is guided
+        toward the previous one (``guide_to_previous_chunk``)."""
         # Checked before it enters the history, so that a refused observation leaves no trace.
         step = self.check_observation(batch, with_time=False)
         self._queues = populate_queues(self._queues, step)
         if not self._queues[ACTION_KEY]:
             history = {k: torch.stack(list(q), dim=1) for k, q in self._queues.items() if k != ACTION_KEY}
-            actions = plan_chunk(
-                lambda h, **rtc: self._chunk(h, noise, None, **rtc),
-                history,
-                ExecutionOptions.from_config(self.config),
-                self._previous_chunk,
-                self.config.n_action_steps,
-                history[POSES_KEY].device,
-            )
+            predict = partial(self._chunk, noise=noise, num_inference_steps=None)
+            actions = plan_chunk(predict, history, self.config, self._previous_chunk)
             self._queues[ACTION_KEY].extend(actions.transpose(0, 1))
         return self._smoother(self._queues[ACTION_KEY].popleft())
 

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 from collections import deque
 from collections.abc import Callable
+from functools import partial
 
 import torch
 from lerobot.policies.diffusion.modeling_diffusion import DiffusionRgbEncoder
@@ -34,7 +35,6 @@ from lerobot_actionflow.nn.pointnet import PointNetEncoder
 from lerobot_actionflow.policies.euclidean_flow.backbones import make_backbone
 from lerobot_actionflow.policies.euclidean_flow.configuration_euclidean_flow import EuclideanFlowConfig
 from lerobot_actionflow.policies.execution import (
-    ExecutionOptions,
     PreviousChunk,
     RTCGuidance,
     TargetSmoother,
@@ -355,20 +355,15 @@ class EuclideanFlowPolicy(StrictLoading, PreTrainedPolicy):
         generated every ``n_action_steps`` calls from the last ``n_obs_steps`` observations.
 
         With the config's execution options (:mod:`lerobot_actionflow.policies.execution`), the
-        actions whose time passed during the inference delay are skipped, and the returned target
-        is smoothed exponentially along SE(3) geodesics."""
+        actions whose time passed during the inference delay are skipped, the returned target
+        is smoothed exponentially along SE(3) geodesics, and each chunk after the first is guided
+        toward the previous one (``guide_to_previous_chunk``)."""
         batch = {k: v for k, v in batch.items() if k != ACTION}
         obs = self._prepare(batch, with_time=False)
         self._queues = populate_queues(self._queues, obs)
         if not self._queues[ACTION]:
             history = {k: torch.stack(list(q), dim=1) for k, q in self._queues.items() if k != ACTION}
-            actions = plan_chunk(
-                lambda h, **rtc: self._chunk(h, noise, None, **rtc),
-                history,
-                ExecutionOptions.from_config(self.config),
-                self._previous_chunk,
-                self.config.n_action_steps,
-                next(self.velocity_net.parameters()).device,
-            )
+            predict = partial(self._chunk, noise=noise, num_inference_steps=None)
+            actions = plan_chunk(predict, history, self.config, self._previous_chunk)
             self._queues[ACTION].extend(actions.transpose(0, 1))
         return self._smoother(self._queues[ACTION].popleft())
