@@ -95,6 +95,7 @@ def inpaint_sample(
     target: PoseChunk,
     weights: torch.Tensor,
     frozen: torch.Tensor,
+    frozen_path: bool | None = None,
 ) -> PoseChunk:
     """Euler sampling on SE(3) over ``times`` (``(K + 1,)`` from 0 to 1) with the guidance of the
     module docstring.
@@ -105,11 +106,15 @@ def inpaint_sample(
         target: the known chunk ``Y``, same shapes as ``x0`` (entries with weight 0 are unused
             but must be finite).
         weights: ``(B, H)`` in ``[0, 1]``; frozen: ``(B, H)`` bool (weight 1 there).
+        frozen_path: set the frozen actions to their path point after every step. None: only when
+            some action is frozen (none at no delay: the path's ``Exp``/``Log`` is skipped). The
+            result is the same either way; True avoids the data-dependent branch, which a traced
+            graph (``torch.compile``, ``torch.export``) cannot hold.
     Returns:
         the chunk at ``t = 1``; its frozen actions are exactly ``target``'s.
     """
     x = x0
-    any_frozen = bool(frozen.any())  # none at no delay: skip the frozen path's Exp/Log
+    any_frozen = bool(frozen.any()) if frozen_path is None else frozen_path
     for k in range(times.shape[0] - 1):
         t, t_next = times[k], times[k + 1]
         v = guided_velocity(x, velocity(x, k), t, target, weights)

@@ -105,6 +105,37 @@ def test_se3_inpainting_without_weights_is_plain_euler():
     assert _max_diff(guided, se3.euler_sample(_invariant_field, x0, times)) == 0
 
 
+class _InpaintProgram(torch.nn.Module):
+    def __init__(self, frozen_path):
+        super().__init__()
+        self.frozen_path = frozen_path
+
+    def forward(self, r0, p0, g0, r1, p1, g1, weights, frozen):
+        times = schedules.uniform_times(3, dtype=r0.dtype)
+        x0, target = se3.PoseChunk(r0, p0, g0), se3.PoseChunk(r1, p1, g1)
+        x1 = guidance.inpaint_sample(_invariant_field, x0, times, target, weights, frozen, self.frozen_path)
+        return x1.r, x1.p, x1.g
+
+
+@pytest.mark.parametrize("delay", [0, 2])
+def test_the_traceable_frozen_path_gives_the_same_chunk_and_exports(delay):
+    """``frozen_path=True`` (what the compiled and exported samplers run) gives the default's
+    chunk, with and without frozen actions, and has no data-dependent branch: ``torch.export``
+    traces it, and the exported graph gives the same chunk. Control: the default branches on the
+    data and does not export."""
+    gen = torch.Generator().manual_seed(6)
+    x0, target = _chunk(2, 6, gen), _chunk(2, 6, gen)
+    weights, frozen = _guide(2, 6, delay, [0.7, 0.3])
+    inputs = (*x0, *target, weights, frozen)
+    default = se3.PoseChunk(*_InpaintProgram(None)(*inputs))
+    traced = se3.PoseChunk(*_InpaintProgram(True)(*inputs))
+    assert _max_diff(default, traced) == 0
+    exported = torch.export.export(_InpaintProgram(True), inputs, strict=False).module()
+    assert _max_diff(se3.PoseChunk(*exported(*inputs)), default) < 1e-12
+    with pytest.raises(Exception, match=r"data-dependent|Could not guard"):
+        torch.export.export(_InpaintProgram(None), inputs, strict=False)
+
+
 def test_frozen_actions_follow_the_geodesic_from_the_noise():
     """At every step a frozen action sits on the geodesic from its noise to the target."""
     gen = torch.Generator().manual_seed(4)
