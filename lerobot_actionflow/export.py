@@ -1,16 +1,19 @@
 """``actionflow-export``: compile a trained ActionFlow checkpoint's sampler ahead of time.
 
-    actionflow-export CHECKPOINT [--steps 2 4] [--batch-sizes 1] [--device cpu|cuda]
+    actionflow-export CHECKPOINT [--steps 2 4] [--batch-sizes 1] [--device cpu|cuda] [--no-guided]
 
 ``CHECKPOINT`` is a ``pretrained_model`` directory, or a directory holding one (a checkpoint step
 directory, or a training output whose ``checkpoints/last/pretrained_model`` is used). For each K
 and batch size (1 for a robot; the number of envs for ``lerobot-eval``) the sampler is exported
 with ``torch.export`` and compiled by AOTInductor (minutes each on a 2-core CPU), then written to
 ``pretrained_model/exported_sampler/<device>_k<K>_b<B>/`` (see
-:mod:`lerobot_actionflow.policies.actionflow.exported`). ``from_pretrained``, and so
-``lerobot-eval`` and any deployment loop, then samples with it from the first chunk. Each
-artefact is checked before the command ends: reloaded from disk, it must give the eager
-sampler's actions on the same observations and noise.
+:mod:`lerobot_actionflow.policies.actionflow.exported`); with the Euler solver, the guided sampler
+too (``..._guided/``: the chunks after an episode's first with ``guide_to_previous_chunk``, the
+default, and ``lerobot-rollout --inference.type=rtc``), unless ``--no-guided``.
+``from_pretrained``, and so ``lerobot-eval`` and any deployment loop, then samples with them from
+the first chunk. Each artefact is checked before the command ends: reloaded from disk, it must
+give the eager sampler's actions on the same observations and noise (and, guided, the same
+leftover chunk and delay).
 """
 
 from __future__ import annotations
@@ -25,6 +28,8 @@ from lerobot_actionflow.schema import STATE_DIM
 
 #: Largest difference allowed between exported and eager actions on the same noise.
 EXPORT_TOLERANCE = 1e-5
+#: The inference delay (control steps) of the guided check: some actions frozen, some guided.
+CHECK_DELAY = 2
 
 
 def resolve_pretrained_dir(path: str | Path) -> Path:
@@ -69,10 +74,13 @@ def load_actionflow(pretrained_dir: Path, device: str):
 
 
 def check_against_eager(
-    pretrained_dir: Path, device: str, steps: list[int], batch_sizes: list[int]
-) -> dict[tuple[int, int], float]:
-    """Reload the checkpoint with its artefacts; for each K and batch size, the largest difference
-    between the exported and the eager actions on random observations and noise.
+    pretrained_dir: Path, device: str, steps: list[int], batch_sizes: list[int], guided: bool = False
+) -> dict[tuple[int, int, bool], float]:
+    """Reload the checkpoint with its artefacts; for each K, batch size and program (plain, and
+    guided with ``guided``), the largest difference between the exported and the eager actions on
+    random observations and noise. The guided program is checked through ``predict_action_chunk``
+    with a leftover chunk (an eager chunk's actions from ``n_action_steps`` on) and
+    :data:`CHECK_DELAY`.
 
     Raises:
         RuntimeError: an artefact was refused, or differs from eager by more than
@@ -83,6 +91,7 @@ def check_against_eager(
     from lerobot_actionflow.flow import se3 as se3_flow
     from lerobot_actionflow.geometry import random_rotation
     from lerobot_actionflow.geometry.se3 import rp_to_pose7
+    from lerobot_actionflow.policies.actionflow.exported import ArtefactKey
     from lerobot_actionflow.schema import POSES_KEY, STATE_KEY
 
     policy = load_actionflow(pretrained_dir, device)
@@ -101,20 +110,29 @@ def check_against_eager(
             b, cfg.horizon, cfg.noise_sigma, cfg.noise_rotation, cfg.noise_kappa, generator=gen
         )
         noise = se3_flow.LocalNoise(noise.r.to(device), noise.p.to(device), noise.g.to(device))
+        samplers = policy.exported_samplers
         for k in steps:
-            samplers = policy.exported_samplers
-            if samplers is None or samplers.get(torch.device(device), k, b) is None:
-                raise RuntimeError(f"the artefact for K={k} batch {b} on {device} was refused after export")
-            a_exported = policy.predict_action_chunk(batch, noise=noise, num_inference_steps=k)
             policy.exported_samplers = None
-            a_eager = policy.predict_action_chunk(batch, noise=noise, num_inference_steps=k)
-            policy.exported_samplers = samplers
-            errors[k, b] = float((a_exported - a_eager).abs().max())
-            if not errors[k, b] <= EXPORT_TOLERANCE:
-                raise RuntimeError(
-                    f"the exported sampler for K={k} batch {b} differs from eager by {errors[k, b]:.2e} "
-                    f"(more than {EXPORT_TOLERANCE:.0e})"
-                )
+            first = policy.predict_action_chunk(batch, noise=noise, num_inference_steps=k)
+            leftover = first[:, cfg.n_action_steps :]
+            for program in (False, True) if guided else (False,):
+                key = ArtefactKey(device, k, b, program)
+                if samplers is None or samplers.get(torch.device(device), k, b, program) is None:
+                    raise RuntimeError(f"the artefact for {key.describe()} was refused after export")
+                kw = {"noise": noise, "num_inference_steps": k}
+                if program:
+                    kw |= {"inference_delay": CHECK_DELAY, "prev_chunk_left_over": leftover}
+                actions = []
+                for samplers_in_use in (samplers, None):
+                    policy.exported_samplers = samplers_in_use
+                    actions.append(policy.predict_action_chunk(batch, **kw))
+                errors[k, b, program] = float((actions[0] - actions[1]).abs().max())
+                if not errors[k, b, program] <= EXPORT_TOLERANCE:
+                    raise RuntimeError(
+                        f"the exported sampler for {key.describe()} differs from eager by "
+                        f"{errors[k, b, program]:.2e} (more than {EXPORT_TOLERANCE:.0e})"
+                    )
+        policy.exported_samplers = samplers
     return errors
 
 
@@ -130,9 +148,15 @@ def main(argv: list[str] | None = None) -> int:
         default=[1],
         help="batch sizes (1: a robot; lerobot-eval: n_envs)",
     )
+    ap.add_argument(
+        "--guided",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="also export the guided sampler (default: when the policy's solver is Euler)",
+    )
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(message)s")
-    from lerobot_actionflow.policies.actionflow.exported import export_sampler
+    from lerobot_actionflow.policies.actionflow.exported import ArtefactKey, export_sampler
 
     try:
         pretrained_dir = resolve_pretrained_dir(args.checkpoint)
@@ -145,16 +169,27 @@ def main(argv: list[str] | None = None) -> int:
         if any(v < 1 for v in values):
             print(f"actionflow-export: {name} must be >= 1, got {values}", file=sys.stderr)
             return 2
+    euler = policy.config.solver == "euler"
+    guided = euler if args.guided is None else args.guided
+    if guided and not euler:
+        print(
+            f"actionflow-export: --guided needs the Euler solver; the policy's is {policy.config.solver!r}",
+            file=sys.stderr,
+        )
+        return 2
     for k in steps:
         for b in args.batch_sizes:
-            t0 = time.perf_counter()
-            out = export_sampler(policy, pretrained_dir, k, args.device, b)
-            size = (out / "sampler.pt2").stat().st_size / 2**20
-            print(
-                f"K={k} batch {b} on {args.device}: {out} ({size:.1f} MiB, {time.perf_counter() - t0:.0f} s)"
-            )
-    for (k, b), err in check_against_eager(pretrained_dir, args.device, steps, args.batch_sizes).items():
-        print(f"K={k} batch {b}: exported == eager on the same noise (max |difference| {err:.1e})")
+            for program in (False, True) if guided else (False,):
+                t0 = time.perf_counter()
+                out = export_sampler(policy, pretrained_dir, k, args.device, b, guided=program)
+                size = (out / "sampler.pt2").stat().st_size / 2**20
+                key = ArtefactKey(args.device, k, b, program)
+                print(f"{key.describe()}: {out} ({size:.1f} MiB, {time.perf_counter() - t0:.0f} s)")
+    checks = check_against_eager(pretrained_dir, args.device, steps, args.batch_sizes, guided)
+    for (k, b, program), err in checks.items():
+        what = "the same noise, leftover and delay" if program else "the same noise"
+        key = ArtefactKey(args.device, k, b, program)
+        print(f"{key.describe()}: exported == eager on {what} (max |difference| {err:.1e})")
     return 0
 
 

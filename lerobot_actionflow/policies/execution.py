@@ -101,9 +101,10 @@ class RealTimeExecutionConfig:
             current step on (the evidence for the default: benchmarks/RESULTS.md, "Guidance
             toward the previous chunk"); ``d`` is the skip expected from the fixed delay plus the previous
             chunk's measured time. What ``lerobot-rollout --inference.type=rtc`` does, inside
-            ``select_action`` (so ``lerobot-eval`` and any loop get it). The guided sampler runs
-            eagerly (a compiled or exported sampler serves only unguided chunks). None: on with
-            ``solver="euler"``, off with ``"midpoint"``; True with ``"midpoint"`` is refused.
+            ``select_action`` (so ``lerobot-eval`` and any loop get it). ActionFlow's compiled
+            and exported samplers (``compile_sampler``, ``actionflow-export``) serve the guided
+            chunks too. None: on with ``solver="euler"``, off with ``"midpoint"``; True with
+            ``"midpoint"`` is refused.
 
     The paper's "execute two actions, then re-plan" is the policy's ``n_action_steps=2``.
     """

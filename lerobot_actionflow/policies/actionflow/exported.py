@@ -1,15 +1,23 @@
 """Ahead-of-time exported ActionFlow samplers, stored with a checkpoint.
 
-An *artefact* is ActionFlow's whole K-step sampler
-(:meth:`ActionflowPolicy.sample_from_observations`: checked observations and initial noise in,
-the ``(B, H, 10)`` action chunk out) exported with ``torch.export`` and compiled by AOTInductor
-into a shared library, with the weights frozen in as constants. Loading one is a ``dlopen``:
-no Python tracing, no compile wait, no guards, one C++ call per chunk.
+An *artefact* is ActionFlow's whole K-step sampler exported with ``torch.export`` and compiled
+by AOTInductor into a shared library, with the weights frozen in as constants. Loading one is a
+``dlopen``: no Python tracing, no compile wait, no guards, one C++ call per chunk. There are two
+programs:
+
+* plain (:meth:`ActionflowPolicy.sample_from_observations`): checked observations and initial
+  noise in, the ``(B, H, 10)`` action chunk out. It serves an episode's first chunk, and every
+  chunk when the guidance is off.
+* guided (:meth:`ActionflowPolicy.guided_sample_from_observations`): the same inputs, then the
+  known actions ``(B, H, 10)``, their guidance weights ``(B, H)`` and the frozen mask ``(B, H)``
+  (real-time chunking: ``guide_to_previous_chunk``, the default, and
+  ``lerobot-rollout --inference.type=rtc``). The delay and the weights are inputs, so one
+  artefact serves every delay.
 
 Layout, inside a checkpoint's ``pretrained_model/`` directory::
 
-    exported_sampler/<device>_k<K>_b<B>/sampler.pt2     the AOTInductor package
-    exported_sampler/<device>_k<K>_b<B>/manifest.json   what it was built from
+    exported_sampler/<device>_k<K>_b<B>[_guided]/sampler.pt2     the AOTInductor package
+    exported_sampler/<device>_k<K>_b<B>[_guided]/manifest.json   what it was built from
 
 An artefact is used only when its manifest matches the policy that loads it: the same format,
 policy type and torch version, the SHA-256 of the weights (every tensor of the
@@ -21,9 +29,9 @@ eagerly. After loading, the parameters' version counters are watched: an in-plac
 artefacts whose weights no longer match are dropped with a log line. Writes through ``.data``
 bypass the version counters; call :meth:`ExportedSamplers.verify` after such an edit.
 
-Each artefact serves one device type, one K and one batch size B (static shapes: inductor's
+Each artefact serves one program, device type, K and batch size B (static shapes: inductor's
 autotuned GEMMs are specialised to them; 1 for a robot, the number of envs for ``lerobot-eval``).
-A chunk with no artefact for its device, K and batch size samples eagerly, logged once.
+A chunk with no artefact for its program, device, K and batch size samples eagerly, logged once.
 """
 
 from __future__ import annotations
@@ -35,12 +43,16 @@ import os
 import shutil
 import tempfile
 from collections.abc import Callable, Iterable
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
 from pathlib import Path
+from typing import NamedTuple
 
 import draccus
 import torch
 from torch import Tensor, nn
+
+from lerobot_actionflow.policies.execution import RealTimeExecutionConfig
+from lerobot_actionflow.policies.flow_options import check_rtc_solver
 
 logger = logging.getLogger(__name__)
 
@@ -48,13 +60,15 @@ logger = logging.getLogger(__name__)
 EXPORT_DIR = "exported_sampler"
 PACKAGE_FILE = "sampler.pt2"
 MANIFEST_FILE = "manifest.json"
-#: Bumped whenever the artefact's calling convention changes.
-FORMAT_VERSION = 1
+#: Bumped whenever the artefact's calling convention or manifest changes.
+FORMAT_VERSION = 2
 #: Configuration fields that do not change what the sampler computes for a given K (they act
-#: before or after it, or only in training). Every other field is part of the fingerprint, so a
-#: field added later can only cause a refusal, never a stale artefact.
+#: before or after it, or only in training; the execution options decide which chunk is guided
+#: and how, through the guided program's inputs). Every other field is part of the fingerprint,
+#: so a field added later can only cause a refusal, never a stale artefact.
 SAMPLER_INDEPENDENT_FIELDS = frozenset(
-    {
+    {f.name for f in fields(RealTimeExecutionConfig)}
+    | {
         "device",
         "use_amp",
         "use_peft",
@@ -95,11 +109,36 @@ INDUCTOR_CONFIGS = {
     "cpu": {"freezing": True, "max_autotune": True, "max_autotune_gemm_backends": "CPP,ATEN"},
     "cuda": {"freezing": True},
 }
+#: Changes for the guided program. On the CPU, torch 2.11's C++ batched-GEMM template fails to
+#: generate code for one of the guided graph's batched products with the pointwise epilogue fused
+#: into it (an ``AssertionError`` in ``ir.py``'s indexer, from ``cpp_bmm_template``), so the
+#: guided program is built without epilogue fusion.
+GUIDED_INDUCTOR_CHANGES = {"cpu": {"epilogue_fusion": False}, "cuda": {}}
 
 
-def artefact_name(device: str, num_inference_steps: int, batch_size: int) -> str:
-    """Directory name of the artefact for a device type, K and batch size, e.g. ``cpu_k4_b1``."""
-    return f"{device}_k{num_inference_steps}_b{batch_size}"
+def inductor_config(device: str, guided: bool) -> dict:
+    """The AOTInductor options of an artefact for ``device`` (the guided program's, with ``guided``)."""
+    return {**INDUCTOR_CONFIGS[device], **(GUIDED_INDUCTOR_CHANGES[device] if guided else {})}
+
+
+class ArtefactKey(NamedTuple):
+    """What one artefact serves."""
+
+    device: str
+    num_inference_steps: int
+    batch_size: int
+    guided: bool = False
+
+    def describe(self) -> str:
+        """E.g. ``K=2 batch 1 on cpu``, ``guided K=2 batch 1 on cpu``."""
+        guided = "guided " if self.guided else ""
+        return f"{guided}K={self.num_inference_steps} batch {self.batch_size} on {self.device}"
+
+
+def artefact_name(device: str, num_inference_steps: int, batch_size: int, guided: bool = False) -> str:
+    """Directory name of the artefact for a device type, K, batch size and program, e.g.
+    ``cpu_k4_b1`` or ``cpu_k2_b1_guided``."""
+    return f"{device}_k{num_inference_steps}_b{batch_size}" + ("_guided" if guided else "")
 
 
 def weights_fingerprint(module: nn.Module) -> str:
@@ -134,8 +173,10 @@ class Manifest:
     Attributes:
         inputs: the tensors the package takes, in order (``observation.poses``, then
             ``observation.state`` and ``image_features`` when the policy reads them, then
-            ``noise_r``, ``noise_p``, ``noise_g``).
+            ``noise_r``, ``noise_p``, ``noise_g``, then for the guided program ``target``,
+            ``weights``, ``frozen``).
         batch_size: the batch size the package takes.
+        guided: the guided program (module docstring).
     """
 
     format: int
@@ -149,6 +190,11 @@ class Manifest:
     package_sha256: str
     inputs: tuple[str, ...]
     batch_size: int
+    guided: bool = False
+
+    @property
+    def key(self) -> ArtefactKey:
+        return ArtefactKey(self.device, self.num_inference_steps, self.batch_size, self.guided)
 
     @classmethod
     def read(cls, path: Path) -> Manifest:
@@ -186,15 +232,17 @@ class Manifest:
 
 
 class SamplerProgram(nn.Module):
-    """The module that gets exported: :meth:`ActionflowPolicy.sample_from_observations` with
-    K's flow times as a constant, taking only the tensors the policy reads."""
+    """The module that gets exported: :meth:`ActionflowPolicy.sample_from_observations` (or, guided,
+    :meth:`ActionflowPolicy.guided_sample_from_observations`) with K's flow times as a constant,
+    taking only the tensors the policy reads."""
 
-    def __init__(self, policy, num_inference_steps: int):
+    def __init__(self, policy, num_inference_steps: int, guided: bool = False):
         super().__init__()
         from lerobot_actionflow.flow import schedules
 
         cfg = policy.config
         self.policy = policy
+        self.guided = guided
         self.has_state = bool(cfg.num_scalars)
         self.has_images = bool(policy.image_keys)
         self.register_buffer(
@@ -213,23 +261,32 @@ class SamplerProgram(nn.Module):
             names.append(STATE_KEY)
         if self.has_images:
             names.append("image_features")
-        return (*names, "noise_r", "noise_p", "noise_g")
+        names += ["noise_r", "noise_p", "noise_g"]
+        if self.guided:
+            names += ["target", "weights", "frozen"]
+        return tuple(names)
 
     def forward(self, *inputs: Tensor) -> Tensor:
         it = iter(inputs)
         poses = next(it)
         state = next(it) if self.has_state else None
         image_features = next(it) if self.has_images else None
-        noise_r, noise_p, noise_g = it
+        noise = next(it), next(it), next(it)
         times = self.times.to(poses.dtype)
-        return self.policy.sample_from_observations(
-            poses, state, image_features, noise_r, noise_p, noise_g, times
+        if not self.guided:
+            return self.policy.sample_from_observations(poses, state, image_features, *noise, times)
+        target, weights, frozen = it
+        return self.policy.guided_sample_from_observations(
+            poses, state, image_features, *noise, times, target, weights, frozen, frozen_path=True
         )
 
 
-def _example_inputs(policy, batch_size: int, device: torch.device) -> tuple[Tensor, ...]:
+def _example_inputs(
+    policy, batch_size: int, device: torch.device, guided: bool = False
+) -> tuple[Tensor, ...]:
     """Valid inputs of the program's shapes (identity rotations; the values do not matter)."""
     from lerobot_actionflow.schema import STATE_DIM
+    from lerobot_actionflow.schema.tensors import pose_to_action
 
     cfg = policy.config
     s, n, h = cfg.n_obs_steps, policy.num_entities, cfg.horizon
@@ -242,8 +299,17 @@ def _example_inputs(policy, batch_size: int, device: torch.device) -> tuple[Tens
         from lerobot_actionflow.nn.image_encoder import ResNet18Encoder
 
         out.append(torch.zeros(batch_size, s, len(policy.image_keys), ResNet18Encoder.out_dim, device=device))
-    eye = torch.eye(3, device=device).expand(batch_size, h, 3, 3).contiguous()
-    out += [eye, torch.zeros(batch_size, h, 3, device=device), torch.zeros(batch_size, h, device=device)]
+
+    # Every input its own tensor: torch.export treats one tensor passed twice as one input.
+    def eye() -> Tensor:
+        return torch.eye(3, device=device).expand(batch_size, h, 3, 3).contiguous()
+
+    def zeros(*shape: int, dtype=torch.float32) -> Tensor:
+        return torch.zeros(batch_size, h, *shape, device=device, dtype=dtype)
+
+    out += [eye(), zeros(3), zeros()]
+    if guided:
+        out += [pose_to_action(eye(), zeros(3), zeros()), zeros(), zeros(dtype=torch.bool)]
     return tuple(out)
 
 
@@ -254,10 +320,11 @@ def expected_manifest(
     batch_size: int,
     package_sha256: str = "",
     weights_sha256: str | None = None,
+    guided: bool = False,
 ) -> Manifest:
-    """The manifest an artefact of this policy for ``device`` and K must carry (``weights_sha256``:
-    the policy's :func:`weights_fingerprint`, when already computed)."""
-    program = SamplerProgram(policy, num_inference_steps)
+    """The manifest an artefact of this policy for ``device``, K, batch size and program must carry
+    (``weights_sha256``: the policy's :func:`weights_fingerprint`, when already computed)."""
+    program = SamplerProgram(policy, num_inference_steps, guided)
     return Manifest(
         format=FORMAT_VERSION,
         policy=policy.name,
@@ -270,22 +337,29 @@ def expected_manifest(
         package_sha256=package_sha256,
         inputs=program.input_names(),
         batch_size=batch_size,
+        guided=guided,
     )
 
 
 def export_sampler(
-    policy, directory: str | Path, num_inference_steps: int, device: str = "cpu", batch_size: int = 1
+    policy,
+    directory: str | Path,
+    num_inference_steps: int,
+    device: str = "cpu",
+    batch_size: int = 1,
+    guided: bool = False,
 ) -> Path:
-    """Export and compile the sampler of ``policy`` for K steps on ``device`` at one batch size;
-    write the artefact under ``directory/exported_sampler/`` (replacing one of the same device, K
-    and batch size) and return its directory.
+    """Export and compile the sampler of ``policy`` (the guided program with ``guided``) for K steps
+    on ``device`` at one batch size; write the artefact under ``directory/exported_sampler/``
+    (replacing one of the same program, device, K and batch size) and return its directory.
 
     The artefact is built in a temporary directory next to its destination and moved into place
     when complete, so an interrupted export leaves any earlier artefact as it was.
 
     Raises:
-        ValueError: K < 1, ``batch_size`` < 1, a device type other than cpu / cuda, or a policy
-            that reads a point cloud (``point_cloud_key``; not supported by the artefacts).
+        ValueError: K < 1, ``batch_size`` < 1, a device type other than cpu / cuda, a policy
+            that reads a point cloud (``point_cloud_key``; not supported by the artefacts), or
+            ``guided`` with a solver other than Euler.
         RuntimeError: CUDA requested but not available.
     """
     if num_inference_steps < 1:
@@ -301,22 +375,25 @@ def export_sampler(
             f"this policy reads the point cloud '{policy.config.point_cloud_key}' (point_cloud_key), "
             "which exported samplers do not take: run it eagerly, or with compile_sampler=true"
         )
+    if guided:
+        check_rtc_solver(policy.config.solver)
     policy = policy.to(device).eval()
-    program = SamplerProgram(policy, num_inference_steps).to(device).eval()
-    example = _example_inputs(policy, batch_size, torch.device(device))
+    program = SamplerProgram(policy, num_inference_steps, guided).to(device).eval()
+    example = _example_inputs(policy, batch_size, torch.device(device), guided)
     with torch.no_grad():
         exported = torch.export.export(program, example, strict=False)
-    final = Path(directory) / EXPORT_DIR / artefact_name(device, num_inference_steps, batch_size)
+    final = Path(directory) / EXPORT_DIR / artefact_name(device, num_inference_steps, batch_size, guided)
     final.parent.mkdir(parents=True, exist_ok=True)
     staging = _staging_dir(final)
     try:
         package = staging / PACKAGE_FILE
         torch._inductor.aoti_compile_and_package(
-            exported, package_path=str(package), inductor_configs=INDUCTOR_CONFIGS[device]
+            exported, package_path=str(package), inductor_configs=inductor_config(device, guided)
         )
-        expected_manifest(policy, device, num_inference_steps, batch_size, file_fingerprint(package)).write(
-            staging / MANIFEST_FILE
+        manifest = expected_manifest(
+            policy, device, num_inference_steps, batch_size, file_fingerprint(package), guided=guided
         )
+        manifest.write(staging / MANIFEST_FILE)
         _replace_directory(staging, final)
     finally:
         shutil.rmtree(staging, ignore_errors=True)
@@ -356,15 +433,20 @@ class _Runner:
         return self._run(inputs)[0]
 
 
+#: The guided program's extra inputs: the known actions ``(B, H, 10)``, the weights ``(B, H)`` and
+#: the frozen mask ``(B, H)`` (:meth:`ActionflowPolicy.guided_sample_from_observations`).
+Guide = tuple[Tensor, Tensor, Tensor]
+
+
 class ExportedSamplers:
-    """The artefacts a policy may use, by (device type, K), with the staleness checks of the
+    """The artefacts a policy may use, by :class:`ArtefactKey`, with the staleness checks of the
     module docstring."""
 
-    def __init__(self, policy, runners: dict[tuple[str, int], _Runner]):
+    def __init__(self, policy, runners: dict[ArtefactKey, _Runner]):
         self._policy = policy
         self._runners = runners
         self._versions = self._parameter_versions()
-        self._reported_misses: set[tuple[str, int]] = set()
+        self._reported_misses: set[ArtefactKey] = set()
 
     @classmethod
     def load(cls, policy, directory: str | Path) -> ExportedSamplers | None:
@@ -378,44 +460,46 @@ class ExportedSamplers:
         for artefact in sorted(p for p in root.iterdir() if p.is_dir() and not p.name.startswith(".")):
             runner = _load_artefact(policy, artefact, weights)
             if runner is not None:
-                m = runner.manifest
-                runners[(m.device, m.num_inference_steps, m.batch_size)] = runner
+                runners[runner.manifest.key] = runner
         return cls(policy, runners)
 
-    def keys(self) -> list[tuple[str, int, int]]:
-        """``(device type, K, batch size)`` of every artefact in use."""
+    def keys(self) -> list[ArtefactKey]:
+        """What every artefact in use serves."""
         return sorted(self._runners)
 
-    def get(self, device: torch.device, num_inference_steps: int, batch_size: int) -> Callable | None:
-        """A callable ``(poses, state, image_features, noise) -> actions`` for this device, K and
-        batch size, or None (logged once per device, K and batch size) when there is none or it
-        no longer matches."""
-        key = (device.type, num_inference_steps, batch_size)
+    def get(
+        self, device: torch.device, num_inference_steps: int, batch_size: int, guided: bool = False
+    ) -> Callable | None:
+        """A callable ``(poses, state, image_features, noise, guide=None) -> actions`` for this
+        device, K, batch size and program (``guide``: :data:`Guide`, for the guided one), or None
+        (logged once per key) when there is none or it no longer matches."""
+        key = ArtefactKey(device.type, num_inference_steps, batch_size, guided)
         if self._versions != self._parameter_versions():
             self.verify()
         runner = self._runners.get(key)
         if runner is None:
             if key not in self._reported_misses and self._runners:
                 self._reported_misses.add(key)
-                have = ", ".join(f"{d} K={k} batch {b}" for d, k, b in self.keys())
+                have = ", ".join(k.describe() for k in self.keys())
                 logger.warning(
-                    "actionflow: no exported sampler for K=%d batch %d on %s (exported: %s); "
-                    "sampling eagerly",
-                    num_inference_steps, batch_size, device.type, have,
+                    "actionflow: no exported sampler for %s (exported: %s); sampling eagerly",
+                    key.describe(), have,
                 )  # fmt: skip
             return None
-        return lambda poses, state, image_features, noise: self._call(
-            runner, poses, state, image_features, noise
+        return lambda poses, state, image_features, noise, guide=None: self._call(
+            runner, poses, state, image_features, noise, guide
         )
 
     @staticmethod
-    def _call(runner: _Runner, poses, state, image_features, noise) -> Tensor:
+    def _call(runner: _Runner, poses, state, image_features, noise, guide: Guide | None = None) -> Tensor:
         inputs = [poses]
         if state is not None:
             inputs.append(state)
         if image_features is not None:
             inputs.append(image_features)
         inputs += [noise.r, noise.p, noise.g]
+        if guide is not None:
+            inputs += list(guide)
         if len(inputs) != len(runner.manifest.inputs):
             raise ValueError(
                 f"the exported sampler {runner.package} takes {list(runner.manifest.inputs)}, "
@@ -430,8 +514,8 @@ class ExportedSamplers:
             if runner.manifest.weights_sha256 != fingerprint:
                 logger.warning(
                     "actionflow: the policy's weights changed since the exported sampler %s was "
-                    "loaded; not using it (K=%d batch %d on %s samples eagerly)",
-                    runner.package, key[1], key[2], key[0],
+                    "loaded; not using it (%s samples eagerly)",
+                    runner.package, key.describe(),
                 )  # fmt: skip
                 del self._runners[key]
         self._versions = self._parameter_versions()
@@ -485,6 +569,7 @@ def _load_artefact(policy, artefact: Path, weights_sha256: str) -> _Runner | Non
         manifest.num_inference_steps,
         manifest.batch_size,
         weights_sha256=weights_sha256,
+        guided=manifest.guided,
     )
     differences = manifest.differences(expected)
     if differences:

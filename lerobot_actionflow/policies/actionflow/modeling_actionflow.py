@@ -102,6 +102,7 @@ class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
         if self.point_cloud_key is not None:
             self._observation_shapes[self.point_cloud_key] = tuple(config.point_cloud_feature.shape)
         self._compiled_sampler = None
+        self._compiled_guided_sampler = None
         #: Exported samplers attached by :meth:`from_pretrained` (or :meth:`attach_exported_samplers`).
         self.exported_samplers: ExportedSamplers | None = None
         self.reset()
@@ -289,41 +290,45 @@ class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
         num_inference_steps: int | None,
         guide: RTCGuidance,
     ) -> Tensor:
-        """:meth:`_predict` with real-time-chunking guidance (eager; never compiled)."""
+        """:meth:`_predict` with real-time-chunking guidance.
+
+        The sampler used, first that applies: an exported guided artefact for this K, batch size
+        and device, the ``torch.compile`` graph of :meth:`guided_sample_from_observations`
+        (``compile_sampler``), eager.
+        """
         cfg = self.config
         k = check_num_inference_steps(
             cfg.num_inference_steps if num_inference_steps is None else num_inference_steps
         )
-        obs = self._observation_tokens(obs)
-        b = obs.p.shape[0]
-        if noise is None:
-            noise = se3_flow.draw_local_noise(
-                b, cfg.horizon, cfg.noise_sigma, cfg.noise_rotation, cfg.noise_kappa, dtype=obs.p.dtype,
-                device=obs.p.device,
-            )  # fmt: skip
-        times = schedules.make_time_grid(
-            k, cfg.time_spacing, cfg.time_spacing_rate, obs.p.dtype, obs.p.device
-        )
-        encoded = self.network.encode_observations(obs)
-        x0 = se3_flow.noise_to_world(noise, encoded.r_ref, encoded.p_ref)
-        shifts = self.network.time_shifts(times[:-1], self._step_sizes(k, k, times))
-
-        def velocity(x: se3_flow.PoseChunk, k: int) -> se3_flow.PoseVelocity:
-            return self.network.velocity(encoded, x, shifts=[s[k : k + 1] for s in shifts])
-
-        target = guide.target.to(device=obs.p.device)
+        poses = obs[POSES_KEY]
+        b, device, dtype = poses.shape[0], poses.device, poses.dtype
+        target = guide.target.to(device=device, dtype=dtype)
         if target.shape[-1] != ACTION_DIM:
             raise ValueError(
                 f"prev_chunk_left_over must hold actions (..., {ACTION_DIM}) [x y z rot6d gripper], "
                 f"got last dimension {target.shape[-1]}"
             )
-        weights, frozen = guide.weights.to(obs.p.device), guide.frozen.to(obs.p.device)
-        # Padding rows (weight 0) are zeros, not poses: stand the noise in for them.
-        target = guidance.select(weights > 0, se3_flow.PoseChunk(*action_to_pose(target)), x0)
-        x1 = guidance.inpaint_sample(velocity, x0, times, target, weights, frozen)
-        out = pose_to_action(x1.r, x1.p, x1.g.clamp(-1.0, 1.0))
-        # The frozen prefix is the leftover itself, bit for bit (not its Gram-Schmidt round trip).
-        return torch.where(frozen[..., None], guide.target.to(out), out)
+        weights, frozen = guide.weights.to(device=device, dtype=dtype), guide.frozen.to(device)
+        if noise is None:
+            noise = se3_flow.draw_local_noise(
+                b, cfg.horizon, cfg.noise_sigma, cfg.noise_rotation, cfg.noise_kappa, dtype=dtype,
+                device=device,
+            )  # fmt: skip
+        state = obs[STATE_KEY] if cfg.num_scalars else None
+        image_features = self._image_features(obs)
+        points = self._latest_points(obs)
+        use_exported = self.exported_samplers is not None and points is None
+        exported = self.exported_samplers.get(device, k, b, guided=True) if use_exported else None
+        if exported is not None:
+            return exported(poses, state, image_features, noise, guide=(target, weights, frozen))
+        times = schedules.make_time_grid(k, cfg.time_spacing, cfg.time_spacing_rate, dtype, device)
+        args = (poses, state, image_features, noise.r, noise.p, noise.g, times)
+        args += (target, weights, frozen, points)
+        if self._use_compiled_sampler(device):
+            if self._compiled_guided_sampler is None:
+                self._compiled_guided_sampler = self._compile(self.guided_sample_from_observations, device)
+            return self._compiled_guided_sampler(*args, frozen_path=True).clone()
+        return self.guided_sample_from_observations(*args)
 
     def _predict(
         self, obs: dict[str, Tensor], noise: se3_flow.LocalNoise | None, num_inference_steps: int | None
@@ -357,13 +362,14 @@ class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
         args = (poses, state, image_features, noise.r, noise.p, noise.g, times, points)
         if self._use_compiled_sampler(device):
             if self._compiled_sampler is None:
-                self._compiled_sampler = self._compile_sampler(device)
+                self._compiled_sampler = self._compile(self.sample_from_observations, device)
             # CUDA-graph replays reuse their output buffers: copy before anyone keeps a view.
             return self._compiled_sampler(*args).clone()
         return self.sample_from_observations(*args)
 
-    def _compile_sampler(self, device: torch.device):
-        """``torch.compile`` of :meth:`sample_from_observations`, one graph per K.
+    def _compile(self, sampler, device: torch.device):
+        """``torch.compile`` of a sampler (:meth:`sample_from_observations` or
+        :meth:`guided_sample_from_observations`), one graph per K.
 
         On CUDA with ``compile_mode`` ("reduce-overhead": CUDA graphs). On the CPU, where a
         batch-1 chunk is bound by operator overhead and by streaming the weights, with inductor's
@@ -374,10 +380,8 @@ class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
         :meth:`reset_compiled_sampler`.
         """
         if device.type == "cpu":
-            return torch.compile(
-                self.sample_from_observations, dynamic=False, options={"freezing": True, "cpp_wrapper": True}
-            )
-        return torch.compile(self.sample_from_observations, mode=self.config.compile_mode, dynamic=False)
+            return torch.compile(sampler, dynamic=False, options={"freezing": True, "cpp_wrapper": True})
+        return torch.compile(sampler, mode=self.config.compile_mode, dynamic=False)
 
     @classmethod
     def from_pretrained(cls, pretrained_name_or_path, **kwargs):
@@ -403,8 +407,9 @@ class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
             self.exported_samplers.save(save_directory)
 
     def reset_compiled_sampler(self) -> None:
-        """Forget the compiled sampler; the next chunk compiles it again with the current weights."""
+        """Forget the compiled samplers; the next chunk compiles them again with the current weights."""
         self._compiled_sampler = None
+        self._compiled_guided_sampler = None
 
     def train(self, mode: bool = True):
         if mode:
@@ -488,6 +493,55 @@ class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
 
         x1 = se3_flow.sample(velocity, x0, times, solver)
         return pose_to_action(x1.r, x1.p, x1.g.clamp(-1.0, 1.0))
+
+    def guided_sample_from_observations(
+        self,
+        poses: Tensor,
+        state: Tensor | None,
+        image_features: Tensor | None,
+        noise_r: Tensor,
+        noise_p: Tensor,
+        noise_g: Tensor,
+        times: Tensor,
+        target: Tensor,
+        weights: Tensor,
+        frozen: Tensor,
+        points: Tensor | None = None,
+        frozen_path: bool | None = None,
+    ) -> Tensor:
+        """:meth:`sample_from_observations` guided toward known actions (real-time chunking,
+        :func:`lerobot_actionflow.flow.guidance.inpaint_sample`): what ``torch.compile`` compiles
+        and :mod:`~lerobot_actionflow.policies.actionflow.exported` exports for guided chunks.
+
+        Args:
+            poses, state, image_features, noise_r, noise_p, noise_g, times, points: as
+                :meth:`sample_from_observations` (Euler steps only).
+            target: the known actions ``(B, H, 10)`` aligned with the chunk (the previous chunk's
+                leftover; rows of weight 0 are ignored and may be zeros).
+            weights: ``(B, H)`` guidance weights in ``[0, 1]``; frozen: ``(B, H)`` bool, the
+                actions returned exactly as ``target``'s (weight 1 there).
+            frozen_path: blend the frozen actions along their path after every step; None: only
+                when an action is frozen (a data-dependent branch, which a traced graph cannot
+                hold, so the compiled and exported samplers pass True: the same actions).
+        Returns:
+            actions ``(B, H, 10)``.
+        """
+        obs = self._tokens(poses, state, image_features, points)
+        encoded = self.network.encode_observations(obs)
+        noise = se3_flow.LocalNoise(noise_r, noise_p, noise_g)
+        x0 = se3_flow.noise_to_world(noise, encoded.r_ref, encoded.p_ref)
+        k = times.shape[0] - 1
+        shifts = self.network.time_shifts(times[:-1], self._step_sizes(k, k, times))
+
+        def velocity(x: se3_flow.PoseChunk, j: int) -> se3_flow.PoseVelocity:
+            return self.network.velocity(encoded, x, shifts=[s[j : j + 1] for s in shifts])
+
+        # Padding rows (weight 0) are zeros, not poses: stand the noise in for them.
+        goal = guidance.select(weights > 0, se3_flow.PoseChunk(*action_to_pose(target)), x0)
+        x1 = guidance.inpaint_sample(velocity, x0, times, goal, weights, frozen, frozen_path=frozen_path)
+        out = pose_to_action(x1.r, x1.p, x1.g.clamp(-1.0, 1.0))
+        # The frozen prefix is the leftover itself, bit for bit (not its Gram-Schmidt round trip).
+        return torch.where(frozen[..., None], target.to(out), out)
 
     def _step_sizes(self, num_steps: int, num_evaluations: int, times: Tensor) -> Tensor | None:
         """The step-size conditioning of each network evaluation of a K-step chunk: ``1/K`` (0 for

@@ -1,5 +1,5 @@
-"""Exported samplers: which artefact a checkpoint may use, and that a real one gives the eager
-actions.
+"""Exported samplers: which artefact a checkpoint may use, for plain and guided chunks, and that a
+real one gives the eager actions.
 
 The refusal logic runs by default with a stand-in for the compiled package (the manifest checks
 never load it); the real export (AOTInductor, minutes on a 2-core CPU) is opt-in: ``-m compile``.
@@ -16,6 +16,7 @@ import torch
 from lerobot_actionflow.flow import se3 as se3_flow
 from lerobot_actionflow.policies.actionflow import exported as ex
 from lerobot_actionflow.policies.actionflow.modeling_actionflow import ActionflowPolicy
+from lerobot_actionflow.schema.tensors import action_to_pose
 
 from .helpers import random_batch, small_config, transform_batch
 from .test_equivariance import _equivariance_error, _random_transform, _sample_twice
@@ -51,12 +52,16 @@ def checkpoint(tmp_path, monkeypatch):
     return path
 
 
-def write_stand_in(policy, path, k, batch_size=2, **manifest_changes):
-    artefact = path / ex.EXPORT_DIR / ex.artefact_name("cpu", k, batch_size)
+PLAIN_K2 = ex.ArtefactKey("cpu", 2, 2)
+GUIDED_K2 = ex.ArtefactKey("cpu", 2, 2, guided=True)
+
+
+def write_stand_in(policy, path, k, batch_size=2, guided=False, **manifest_changes):
+    artefact = path / ex.EXPORT_DIR / ex.artefact_name("cpu", k, batch_size, guided)
     artefact.mkdir(parents=True, exist_ok=True)
     (artefact / ex.PACKAGE_FILE).write_bytes(b"stand-in package")
     package_sha256 = ex.file_fingerprint(artefact / ex.PACKAGE_FILE)
-    manifest = ex.expected_manifest(policy, "cpu", k, batch_size, package_sha256)
+    manifest = ex.expected_manifest(policy, "cpu", k, batch_size, package_sha256, guided=guided)
     fields = {**asdict(manifest), **manifest_changes}
     ex.Manifest(**fields).write(artefact / ex.MANIFEST_FILE)
     return artefact
@@ -74,7 +79,7 @@ def used_artefact(actions) -> bool:
 
 def test_a_matching_artefact_is_used_from_the_first_chunk(checkpoint):
     policy = ActionflowPolicy.from_pretrained(checkpoint)
-    assert policy.exported_samplers.keys() == [("cpu", 2, 2)]
+    assert policy.exported_samplers.keys() == [PLAIN_K2]
     assert used_artefact(chunk(policy))
     # poses, state, noise r / p / g: the inputs the manifest names, batch first.
     assert StandInRunner.calls == [[(2, 2, 4, 7), (2, 2, 11), (2, 8, 3, 3), (2, 8, 3), (2, 8)]]
@@ -85,7 +90,7 @@ def test_other_k_samples_eagerly_and_says_so(checkpoint, caplog):
     with caplog.at_level(logging.INFO):
         actions = chunk(policy, k=3)
     assert not used_artefact(actions)
-    assert "no exported sampler for K=3 batch 2 on cpu (exported: cpu K=2 batch 2); sampling eagerly" in (
+    assert "no exported sampler for K=3 batch 2 on cpu (exported: K=2 batch 2 on cpu); sampling eagerly" in (
         caplog.text
     )
 
@@ -136,8 +141,51 @@ def test_other_weights_in_the_checkpoint_refuse_the_artefact(checkpoint, caplog)
     assert not used_artefact(chunk(policy))
 
 
+def guided_chunk(policy, k=2, batch_size=2, delay=1):
+    """A chunk guided toward a leftover (as ``select_action`` and LeRobot's RTC engine ask)."""
+    gen = torch.Generator().manual_seed(2)
+    leftover = random_batch(policy.config, batch_size, gen)["action"][:, 3:]
+    return policy.predict_action_chunk(
+        random_batch(policy.config, batch_size, gen),
+        num_inference_steps=k,
+        inference_delay=delay,
+        prev_chunk_left_over=leftover,
+    )
+
+
+def test_guided_chunks_use_the_guided_artefact(checkpoint):
+    torch.manual_seed(0)
+    write_stand_in(ActionflowPolicy(small_config()), checkpoint, k=2, guided=True)
+    policy = ActionflowPolicy.from_pretrained(checkpoint)
+    assert policy.exported_samplers.keys() == [PLAIN_K2, GUIDED_K2]
+    assert used_artefact(guided_chunk(policy))
+    # the plain inputs, then the leftover aligned with the chunk, its weights and the frozen mask
+    assert StandInRunner.calls[-1][-3:] == [(2, 8, 10), (2, 8), (2, 8)]
+    assert used_artefact(chunk(policy))
+    assert len(StandInRunner.calls[-1]) == 5
+
+    # select_action with the default guidance: the first chunk plain, the next guided
+    policy.reset()
+    policy.config.num_inference_steps = 2
+    step = {k: v[:, 0] for k, v in random_batch(policy.config, 2, torch.Generator()).items() if k != "action"}
+    for _ in range(2 * policy.config.n_action_steps):
+        policy.select_action(step)
+    assert [len(c) for c in StandInRunner.calls[-2:]] == [5, 8]
+
+
+def test_guided_chunks_without_a_guided_artefact_sample_eagerly_and_say_so(checkpoint, caplog):
+    policy = ActionflowPolicy.from_pretrained(checkpoint)
+    with caplog.at_level(logging.INFO):
+        assert not used_artefact(guided_chunk(policy))
+    assert "no exported sampler for guided K=2 batch 2 on cpu (exported: K=2 batch 2 on cpu)" in caplog.text
+
+
 def test_options_outside_the_sampler_keep_the_artefact(checkpoint):
     policy = ActionflowPolicy.from_pretrained(checkpoint, config=small_config(n_action_steps=2))
+    assert used_artefact(chunk(policy))
+    # the execution options decide which chunk is guided and how, not what a sampler computes
+    execution = dict(guide_to_previous_chunk=False, execution_delay_steps=1, target_smoothing=0.5)
+    policy = ActionflowPolicy.from_pretrained(checkpoint, config=small_config(**execution))
     assert used_artefact(chunk(policy))
     changed = ActionflowPolicy.from_pretrained(checkpoint, config=small_config(noise_sigma=0.2))
     assert not used_artefact(chunk(changed))
@@ -181,20 +229,54 @@ def test_export_command_names_a_missing_checkpoint(tmp_path, capsys):
     assert f"no checkpoint at {tmp_path / 'nowhere'}" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("guided", [False, True], ids=["plain", "guided"])
+def test_the_exported_programs_trace_to_the_eager_actions(guided):
+    """Both programs go through ``torch.export`` (no data-dependent branch), and the traced graph
+    gives ``predict_action_chunk``'s actions on the same observations, noise and leftover. (The
+    AOTInductor build of the graph is the ``-m compile`` test below.)"""
+    from lerobot_actionflow.policies.execution import rtc_config_of, rtc_guidance
+
+    torch.manual_seed(0)
+    policy = ActionflowPolicy(small_config()).eval()
+    program = ex.SamplerProgram(policy, 2, guided)
+    example = ex._example_inputs(policy, 2, torch.device("cpu"), guided)
+    graph = torch.export.export(program, example, strict=False).module()
+
+    gen = torch.Generator().manual_seed(4)
+    batch = random_batch(policy.config, 2, gen)
+    leftover = batch.pop("action")[:, 3:]
+    noise = se3_flow.draw_local_noise(2, policy.config.horizon, 0.1, generator=gen)
+    obs = policy.check_observation(batch)
+    inputs = [obs["observation.poses"], obs["observation.state"], noise.r, noise.p, noise.g]
+    rtc = {}
+    if guided:
+        guide = rtc_guidance(leftover, 1, policy.config.horizon, rtc_config_of(policy.config), batch_size=2)
+        inputs += [guide.target, guide.weights, guide.frozen]
+        rtc = {"inference_delay": 1, "prev_chunk_left_over": leftover}
+    expected = policy.predict_action_chunk(batch, noise=noise, num_inference_steps=2, **rtc)
+    assert (graph(*inputs) - expected).abs().max() <= 1e-5
+    if guided:  # control: the same graph without the guidance's pull
+        inputs[-2] = torch.zeros_like(inputs[-2])
+        inputs[-1] = torch.zeros_like(inputs[-1])
+        assert (graph(*inputs) - expected).abs().max() > 1e-2
+
+
 @pytest.mark.compile
 def test_exported_sampler_round_trip_equals_eager_and_is_equivariant(tmp_path, caplog):
     from lerobot_actionflow.export import main
 
     torch.manual_seed(0)
     ActionflowPolicy(small_config()).save_pretrained(tmp_path / "pretrained_model")
-    # Checks exported == eager itself, to 1e-5, at each batch size.
+    # Checks exported == eager itself, to 1e-5, at each batch size, plain and guided.
     assert main([str(tmp_path), "--steps", "2", "--batch-sizes", "1", "3"]) == 0
 
     policy = ActionflowPolicy.from_pretrained(tmp_path / "pretrained_model")
     policy.save_pretrained(tmp_path / "copy")
     policy = ActionflowPolicy.from_pretrained(tmp_path / "copy")
-    assert policy.exported_samplers.keys() == [("cpu", 2, 1), ("cpu", 2, 3)]
-    assert isinstance(policy.exported_samplers._runners[("cpu", 2, 3)], ex._Runner)
+    assert policy.exported_samplers.keys() == [
+        ex.ArtefactKey("cpu", 2, b, guided) for b in (1, 3) for guided in (False, True)
+    ]
+    assert isinstance(policy.exported_samplers._runners[("cpu", 2, 3, True)], ex._Runner)
     gen = torch.Generator().manual_seed(3)
     batch = random_batch(policy.config, 3, gen)
     noise = se3_flow.draw_local_noise(3, policy.config.horizon, 0.1, generator=gen)
@@ -213,6 +295,24 @@ def test_exported_sampler_round_trip_equals_eager_and_is_equivariant(tmp_path, c
     with caplog.at_level(logging.INFO):
         policy.predict_action_chunk(transform_batch(batch, r_d, p_d), num_inference_steps=4)
     assert "no exported sampler for K=4" in caplog.text
+
+    # The guided artefact: eager's chunk, and the scene moved with the leftover moves the chunk.
+    leftover = random_batch(policy.config, 3, gen)["action"][:, 3:]
+    kw = dict(noise=noise, num_inference_steps=2, inference_delay=2)
+    calls = len(policy.exported_samplers._reported_misses)
+    a_guided = policy.predict_action_chunk(batch, prev_chunk_left_over=leftover, **kw)
+    assert len(policy.exported_samplers._reported_misses) == calls  # no eager fallback
+    a_eager = eager.predict_action_chunk(batch, prev_chunk_left_over=leftover, **kw)
+    assert (a_guided - a_eager).abs().max() <= 1e-5
+    moved = transform_batch({**batch, "action": leftover}, r_d, p_d)
+    a_moved = policy.predict_action_chunk(
+        {k: v for k, v in moved.items() if k != "action"}, prev_chunk_left_over=moved["action"], **kw
+    )
+    assert _equivariance_error(action_to_pose(a_guided), action_to_pose(a_moved), r_d, p_d) <= 1e-4
+    a_unmoved = policy.predict_action_chunk(  # control: the leftover left where it was
+        {k: v for k, v in moved.items() if k != "action"}, prev_chunk_left_over=leftover, **kw
+    )
+    assert _equivariance_error(action_to_pose(a_guided), action_to_pose(a_unmoved), r_d, p_d) > 1e-2
 
 
 def test_export_command_finds_the_checkpoint_in_a_training_output(tmp_path):
