@@ -15,6 +15,13 @@ that reads a cloud is not timed by this script.
 every chunk after the first (cells ``<name>+guided/IS<n>``): guided toward the unexecuted tail
 of a chunk of the same observation, with no delay (:class:`GuidedChunks`).
 
+Every checkpoint samples eagerly, except those named by ``--exported NAME ...``: their
+``actionflow-export`` artefacts (plain and guided) serve the chunks that have one. One directory
+may be given under two names, to time it both ways side by side:
+
+    python benchmarks/bench_checkpoint_latency.py --task StackThree_D0 --inference-steps 2 4 \
+        --checkpoints eager=$CKPT exported=$CKPT --exported exported --guided eager exported
+
     python benchmarks/bench_checkpoint_latency.py --task Lift --inference-steps 1 2 4 10 \\
         --checkpoints default=/work/study/Lift/.../pretrained_model shortcut=/.../pretrained_model \\
             solver_midpoint=/work/study/Lift/.../pretrained_model --midpoint solver_midpoint \\
@@ -100,6 +107,26 @@ class GuidedChunks:
         return self.policy.predict_action_chunk(batch, inference_delay=0, prev_chunk_left_over=self.leftover)
 
 
+def choose_samplers(policies: dict, exported: list[str]) -> dict[str, list[str]]:
+    """Drop every policy's exported samplers but those of the ``exported`` names (so that the
+    others sample eagerly); returns name -> the artefacts in use. Raises ValueError for an
+    ``exported`` name with no accepted artefact."""
+    in_use = {}
+    for name, (policy, _) in policies.items():
+        samplers = getattr(policy, "exported_samplers", None)
+        if name not in exported:
+            if samplers is not None:
+                policy.exported_samplers = None
+            continue
+        if samplers is None or not samplers.keys():
+            raise ValueError(
+                f"--exported {name}: the checkpoint has no exported sampler this policy accepts "
+                "(run actionflow-export on it; refusals are logged above)"
+            )
+        in_use[name] = [key.describe() for key in samplers.keys()]
+    return in_use
+
+
 def time_cells(
     policies: dict, steps: list[int], warmup: int, repeats: int, solvers: dict[str, str] | None = None
 ) -> tuple[dict[str, dict], dict[str, str]]:
@@ -160,6 +187,9 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument(
         "--guided", nargs="*", default=[], help="names also timed with guidance toward a previous chunk"
     )
+    ap.add_argument(
+        "--exported", nargs="*", default=[], help="names whose exported samplers serve their chunks"
+    )
     ap.add_argument("--inference-steps", type=int, nargs="+", default=[1, 2, 4, 10])
     ap.add_argument("--repeats", type=int, default=50)
     ap.add_argument("--warmup", type=int, default=5)
@@ -179,7 +209,11 @@ def main(argv: list[str] | None = None) -> dict:
         if name in named:
             raise SystemExit(f"--checkpoints: the name {name!r} is given twice")
         named[name] = str(Path(path).resolve())  # as latency_sweep.py --real_latency matches them
-    for flag, names in (("--midpoint", args.midpoint), ("--guided", args.guided)):
+    for flag, names in (
+        ("--midpoint", args.midpoint),
+        ("--guided", args.guided),
+        ("--exported", args.exported),
+    ):
         if set(names) - set(named):
             raise SystemExit(f"{flag} {sorted(set(names) - set(named))}: not among the --checkpoints names")
     if set(args.midpoint) & set(args.guided):
@@ -190,6 +224,10 @@ def main(argv: list[str] | None = None) -> dict:
     torch.set_num_threads(args.threads)
     register_all()
     policies = {name: load(path, args.task) for name, path in named.items()}
+    try:
+        exported = choose_samplers(policies, args.exported)
+    except ValueError as e:
+        raise SystemExit(str(e)) from None
     for name in args.guided:
         try:
             policies[f"{name}+guided"] = (GuidedChunks(*policies[name]), policies[name][1])
@@ -206,6 +244,7 @@ def main(argv: list[str] | None = None) -> dict:
         "warmup": args.warmup,
         "midpoint": args.midpoint,
         "guided": args.guided,
+        "exported": exported,
     }
     try:
         timed, skipped = time_cells(

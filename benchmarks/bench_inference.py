@@ -18,7 +18,12 @@ Each worker process measures, from its own start (the parent's spawn time):
   returned (one chunk at the config's K = 4; for ``compile`` this includes compiling it);
 - per K / IS: the median and p90 of ``--repeats`` ``predict_action_chunk`` calls at batch 1
   after ``--warmup`` calls (``first_call_s``: the first call at that K, a compile for
-  ``compile``).
+  ``compile``);
+- for ActionFlow, per K also the guided chunk (``K<k>_guided``): what ``guide_to_previous_chunk``
+  (the default) samples for every chunk after an episode's first, and LeRobot's RTC engine for
+  every chunk, ``predict_action_chunk(obs, inference_delay=0, prev_chunk_left_over=leftover)``
+  with the tail past ``n_action_steps`` of a plain chunk as the leftover; the exported variant
+  serves it from the guided artefact (``actionflow-export`` makes both).
 
     python benchmarks/bench_inference.py                          # CPU, 2 threads
     python benchmarks/bench_inference.py --variants exported eager --steps 4 --repeats 50
@@ -85,11 +90,20 @@ def worker(args) -> dict:
         elif not policy.exported_samplers or not policy.exported_samplers.keys():
             raise SystemExit(f"no exported sampler was accepted for {args.checkpoint} (see the log above)")
         else:
-            out["exported"] = [f"{d} K={k} batch {b}" for d, k, b in policy.exported_samplers.keys()]
+            out["exported"] = [key.describe() for key in policy.exported_samplers.keys()]
         obs = {k: v for k, v in make_batch(policy.config, 1, device).items() if k != ACTION_KEY}
 
         def set_steps(k):
             return lambda o: policy.predict_action_chunk(o, num_inference_steps=k)
+
+        def set_guided_steps(k):
+            with torch.inference_mode():
+                leftover = policy.predict_action_chunk(obs, num_inference_steps=k)[
+                    :, policy.config.n_action_steps :
+                ]
+            return lambda o: policy.predict_action_chunk(
+                o, num_inference_steps=k, inference_delay=0, prev_chunk_left_over=leftover
+            )
     else:
         policy = build("diffusion", DIFFUSION_VARIANTS[args.worker], device).eval()
         batch = make_lift_batch(1, policy.config.n_obs_steps, policy.config.horizon, device)
@@ -105,8 +119,11 @@ def worker(args) -> dict:
         sync()
         out["first_action_s"] = round(time.time() - args.spawn_time, 3)
         out["parameters"] = sum(p.numel() for p in policy.parameters())
-        for k in args.steps:
-            chunk = set_steps(k)
+        cells = [(f"K{k}", k, set_steps) for k in args.steps]
+        if args.worker in ACTIONFLOW_VARIANTS:
+            cells += [(f"K{k}_guided", k, set_guided_steps) for k in args.steps]
+        for name, k, make_chunk in cells:
+            chunk = make_chunk(k)
             t0 = time.perf_counter()
             chunk(obs)
             sync()
@@ -119,9 +136,9 @@ def worker(args) -> dict:
                 chunk(obs)
                 sync()
                 times.append(1e3 * (time.perf_counter() - t0))
-            out[f"K{k}"] = {"first_call_s": round(first, 3), **_summary(times)}
-            if args.worker == "exported":
-                out[f"K{k}"]["package_only"] = _package_only(policy, obs, k, args.repeats)
+            out[name] = {"first_call_s": round(first, 3), **_summary(times)}
+            if args.worker == "exported" and name == f"K{k}":
+                out[name]["package_only"] = _package_only(policy, obs, k, args.repeats)
     return out
 
 
@@ -129,12 +146,13 @@ def _package_only(policy, obs: dict, k: int, repeats: int) -> dict:
     """The artefact's own call on prepared inputs: what ``predict_action_chunk`` adds around it
     (input checks, noise drawing, the staleness check) is the difference."""
     from lerobot_actionflow.flow import se3 as se3_flow
+    from lerobot_actionflow.policies.actionflow.exported import ArtefactKey
     from lerobot_actionflow.schema import POSES_KEY, STATE_KEY
 
     cfg = policy.config
     checked = policy.check_observation(obs)
     noise = se3_flow.draw_local_noise(1, cfg.horizon, cfg.noise_sigma, cfg.noise_rotation, cfg.noise_kappa)
-    runner = policy.exported_samplers._runners[("cpu", k, 1)]
+    runner = policy.exported_samplers._runners[ArtefactKey("cpu", k, 1)]
     inputs = [checked[POSES_KEY], checked[STATE_KEY], noise.r, noise.p, noise.g]
     times = []
     for _ in range(repeats):
@@ -146,7 +164,8 @@ def _package_only(policy, obs: dict, k: int, repeats: int) -> dict:
 
 # -- parent ---------------------------------------------------------------------------------------
 def make_checkpoint(workdir: Path, device: str, steps: list[int]) -> tuple[Path, dict]:
-    """The default-size checkpoint with artefacts for every K (exported when missing)."""
+    """The default-size checkpoint with artefacts for every K, plain and guided (exported when
+    missing)."""
     import torch
 
     sys.path.insert(0, str(HERE))
@@ -160,7 +179,13 @@ def make_checkpoint(workdir: Path, device: str, steps: list[int]) -> tuple[Path,
         torch.manual_seed(0)
         workload = argparse.Namespace(entities=5, n_obs_steps=2, horizon=16, layers=4, image=False)
         ActionflowPolicy(make_config(workload, "cpu", False)).save_pretrained(ckpt)
-    missing = [k for k in steps if not (ckpt / EXPORT_DIR / artefact_name(device, k, 1)).is_dir()]
+    missing = [
+        k
+        for k in steps
+        if not all(
+            (ckpt / EXPORT_DIR / artefact_name(device, k, 1, guided)).is_dir() for guided in (False, True)
+        )
+    ]
     export = {}
     if missing:
         t0 = time.perf_counter()
@@ -190,9 +215,14 @@ def table(results: dict, steps: list[int]) -> str:
         if "error" in r:
             lines.append(f"| {name} | error: {r['error']} |")
             continue
-        cells = [f"{r[f'K{k}']['median_ms']:.2f} / {r[f'K{k}']['p90_ms']:.2f}" for k in steps]
-        firsts = f"{r['import_s']:.2f} | {r['first_action_s']:.2f}"
-        lines.append(f"| {name} | {firsts} | " + " | ".join(cells) + " |")
+        for suffix in ("", "_guided"):
+            if f"K{steps[0]}{suffix}" not in r:
+                continue
+            cells = [
+                f"{r[f'K{k}{suffix}']['median_ms']:.2f} / {r[f'K{k}{suffix}']['p90_ms']:.2f}" for k in steps
+            ]
+            firsts = f"{r['import_s']:.2f} | {r['first_action_s']:.2f}" if not suffix else " | "
+            lines.append(f"| {name}{suffix.replace('_', ', ')} | {firsts} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
@@ -231,6 +261,15 @@ def main() -> None:
         if "error" not in results["exported"] and "error" not in results["diffusion_default"]:
             ratio = results["diffusion_default"]["K2"]["median_ms"] / results["exported"]["K2"]["median_ms"]
             report["diffusion_default_over_exported_at_2_steps"] = round(ratio, 1)
+    if all(v in results and "error" not in results[v] for v in ("eager", "exported")):
+        report["guided_eager_over_exported"] = {
+            f"K{k}": round(
+                results["eager"][f"K{k}_guided"]["median_ms"]
+                / results["exported"][f"K{k}_guided"]["median_ms"],
+                2,
+            )
+            for k in args.steps
+        }
     print(json.dumps(report, indent=2))
     print(table(results, args.steps))
 

@@ -136,3 +136,23 @@ def test_guided_cells_guide_every_chunk_toward_the_tail_of_a_plain_one():
     midpoint.config.solver = "midpoint"
     with pytest.raises(ValueError, match="steers Euler steps"):
         bench.GuidedChunks(midpoint, {})
+
+
+def test_only_the_named_checkpoints_sample_with_their_exported_samplers():
+    from lerobot_actionflow.policies.actionflow.exported import ArtefactKey
+
+    def with_artefacts(*keys):
+        policy = CountingPolicy("euler")
+        policy.exported_samplers = SimpleNamespace(keys=lambda: list(keys))
+        return policy
+
+    keys = (ArtefactKey("cpu", 2, 1), ArtefactKey("cpu", 2, 1, guided=True))
+    policies = {"eager": (with_artefacts(*keys), {}), "exported": (with_artefacts(*keys), {})}
+    policies["diffusion"] = (CountingDiffusion(trained_steps=10), {})  # has no such attribute
+    in_use = bench.choose_samplers(policies, ["exported"])
+    assert in_use == {"exported": ["K=2 batch 1 on cpu", "guided K=2 batch 1 on cpu"]}
+    assert policies["eager"][0].exported_samplers is None
+    assert policies["exported"][0].exported_samplers is not None
+    # a checkpoint named --exported without an accepted artefact is refused by name
+    with pytest.raises(ValueError, match="--exported none: the checkpoint has no exported sampler"):
+        bench.choose_samplers({"none": (with_artefacts(), {})}, ["none"])
