@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import logging
 from collections import deque
+from collections.abc import Callable
 from functools import partial
 from pathlib import Path
 
@@ -101,8 +102,8 @@ class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
         self.point_cloud_key = config.point_cloud_key
         if self.point_cloud_key is not None:
             self._observation_shapes[self.point_cloud_key] = tuple(config.point_cloud_feature.shape)
-        self._compiled_sampler = None
-        self._compiled_guided_sampler = None
+        #: ``torch.compile`` graphs, by program (True: the guided one), made at their first chunk.
+        self._compiled_samplers: dict[bool, Callable] = {}
         #: Exported samplers attached by :meth:`from_pretrained` (or :meth:`attach_exported_samplers`).
         self.exported_samplers: ExportedSamplers | None = None
         self.reset()
@@ -271,7 +272,7 @@ class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
             batch_size=obs[POSES_KEY].shape[0],
             execution_horizon=execution_horizon,
         )
-        return self._predict_rtc(obs, noise, num_inference_steps, guide)
+        return self._predict(obs, noise, num_inference_steps, guide)
 
     def _observation_history(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
         """The checked history ``(B, n_obs_steps, ...)`` of a history batch, or of one step
@@ -283,18 +284,19 @@ class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
             return self.check_observation(batch, with_time=True)
         return history_with_step(self._queues, self.check_observation(batch, with_time=False), ACTION_KEY)
 
-    def _predict_rtc(
+    def _predict(
         self,
         obs: dict[str, Tensor],
         noise: se3_flow.LocalNoise | None,
         num_inference_steps: int | None,
-        guide: RTCGuidance,
+        guide: RTCGuidance | None = None,
     ) -> Tensor:
-        """:meth:`_predict` with real-time-chunking guidance.
+        """:meth:`predict_action_chunk` on an observation history already checked; with ``guide``,
+        guided by real-time chunking (:meth:`guided_sample_from_observations`).
 
-        The sampler used, first that applies: an exported guided artefact for this K, batch size
-        and device, the ``torch.compile`` graph of :meth:`guided_sample_from_observations`
-        (``compile_sampler``), eager.
+        The sampler used, first that applies: an exported artefact for this program, K, batch
+        size and device (:mod:`~lerobot_actionflow.policies.actionflow.exported`), the
+        ``torch.compile`` graph (``compile_sampler``), eager.
         """
         cfg = self.config
         k = check_num_inference_steps(
@@ -302,49 +304,16 @@ class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
         )
         poses = obs[POSES_KEY]
         b, device, dtype = poses.shape[0], poses.device, poses.dtype
-        target = guide.target.to(device=device, dtype=dtype)
-        if target.shape[-1] != ACTION_DIM:
-            raise ValueError(
-                f"prev_chunk_left_over must hold actions (..., {ACTION_DIM}) [x y z rot6d gripper], "
-                f"got last dimension {target.shape[-1]}"
-            )
-        weights, frozen = guide.weights.to(device=device, dtype=dtype), guide.frozen.to(device)
-        if noise is None:
-            noise = se3_flow.draw_local_noise(
-                b, cfg.horizon, cfg.noise_sigma, cfg.noise_rotation, cfg.noise_kappa, dtype=dtype,
-                device=device,
-            )  # fmt: skip
-        state = obs[STATE_KEY] if cfg.num_scalars else None
-        image_features = self._image_features(obs)
-        points = self._latest_points(obs)
-        use_exported = self.exported_samplers is not None and points is None
-        exported = self.exported_samplers.get(device, k, b, guided=True) if use_exported else None
-        if exported is not None:
-            return exported(poses, state, image_features, noise, guide=(target, weights, frozen))
-        times = schedules.make_time_grid(k, cfg.time_spacing, cfg.time_spacing_rate, dtype, device)
-        args = (poses, state, image_features, noise.r, noise.p, noise.g, times)
-        args += (target, weights, frozen, points)
-        if self._use_compiled_sampler(device):
-            if self._compiled_guided_sampler is None:
-                self._compiled_guided_sampler = self._compile(self.guided_sample_from_observations, device)
-            return self._compiled_guided_sampler(*args, frozen_path=True).clone()
-        return self.guided_sample_from_observations(*args)
-
-    def _predict(
-        self, obs: dict[str, Tensor], noise: se3_flow.LocalNoise | None, num_inference_steps: int | None
-    ) -> Tensor:
-        """:meth:`predict_action_chunk` on an observation history already checked.
-
-        The sampler used, first that applies: an exported artefact for this K and device
-        (:mod:`~lerobot_actionflow.policies.actionflow.exported`), the ``torch.compile`` graph
-        (``compile_sampler``), eager.
-        """
-        cfg = self.config
-        k = check_num_inference_steps(
-            cfg.num_inference_steps if num_inference_steps is None else num_inference_steps
-        )
-        poses = obs[POSES_KEY]
-        b, device, dtype = poses.shape[0], poses.device, poses.dtype
+        guided = guide is not None
+        known: tuple[Tensor, ...] = ()  # the guided sampler's target, weights, frozen
+        if guided:
+            target = guide.target.to(device=device, dtype=dtype)
+            if target.shape[-1] != ACTION_DIM:
+                raise ValueError(
+                    f"prev_chunk_left_over must hold actions (..., {ACTION_DIM}) [x y z rot6d gripper], "
+                    f"got last dimension {target.shape[-1]}"
+                )
+            known = (target, guide.weights.to(device=device, dtype=dtype), guide.frozen.to(device))
         if noise is None:
             noise = se3_flow.draw_local_noise(
                 b, cfg.horizon, cfg.noise_sigma, cfg.noise_rotation, cfg.noise_kappa, dtype=dtype,
@@ -355,17 +324,19 @@ class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
         points = self._latest_points(obs)
         # Exported artefacts take no point cloud (actionflow-export refuses such policies).
         use_exported = self.exported_samplers is not None and points is None
-        exported = self.exported_samplers.get(device, k, b) if use_exported else None
+        exported = self.exported_samplers.get(device, k, b, guided) if use_exported else None
         if exported is not None:
-            return exported(poses, state, image_features, noise)
+            return exported(poses, state, image_features, noise, guide=known or None)
         times = schedules.make_time_grid(k, cfg.time_spacing, cfg.time_spacing_rate, dtype, device)
-        args = (poses, state, image_features, noise.r, noise.p, noise.g, times, points)
+        args = (poses, state, image_features, noise.r, noise.p, noise.g, times, *known, points)
+        sampler = self.guided_sample_from_observations if guided else self.sample_from_observations
         if self._use_compiled_sampler(device):
-            if self._compiled_sampler is None:
-                self._compiled_sampler = self._compile(self.sample_from_observations, device)
+            if guided not in self._compiled_samplers:
+                self._compiled_samplers[guided] = self._compile(sampler, device)
+            traceable = {"frozen_path": True} if guided else {}
             # CUDA-graph replays reuse their output buffers: copy before anyone keeps a view.
-            return self._compiled_sampler(*args).clone()
-        return self.sample_from_observations(*args)
+            return self._compiled_samplers[guided](*args, **traceable).clone()
+        return sampler(*args)
 
     def _compile(self, sampler, device: torch.device):
         """``torch.compile`` of a sampler (:meth:`sample_from_observations` or
@@ -408,8 +379,7 @@ class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
 
     def reset_compiled_sampler(self) -> None:
         """Forget the compiled samplers; the next chunk compiles them again with the current weights."""
-        self._compiled_sampler = None
-        self._compiled_guided_sampler = None
+        self._compiled_samplers.clear()
 
     def train(self, mode: bool = True):
         if mode:
@@ -479,20 +449,27 @@ class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
     ) -> Tensor:
         """The K-step sampler from network inputs (:class:`ObservationTokens`' tensors) to actions."""
         obs = ObservationTokens(obs_r, obs_p, scalars, image_features, points)
-        encoded = self.network.encode_observations(obs)
         noise = se3_flow.LocalNoise(noise_r, noise_p, noise_g)
+        x0, velocity = self._flow_start(obs, noise, times, self.config.solver)
+        x1 = se3_flow.sample(velocity, x0, times, self.config.solver)
+        return pose_to_action(x1.r, x1.p, x1.g.clamp(-1.0, 1.0))
+
+    def _flow_start(
+        self, obs: ObservationTokens, noise: se3_flow.LocalNoise, times: Tensor, solver: str
+    ) -> tuple[se3_flow.PoseChunk, se3_flow.VelocityField]:
+        """The initial noise in the world frame and the network's field ``velocity(x, j)`` for the
+        ``j``-th evaluation of ``solver`` over ``times``, the observations encoded once."""
+        encoded = self.network.encode_observations(obs)
         x0 = se3_flow.noise_to_world(noise, encoded.r_ref, encoded.p_ref)
         # Every flow time of the chunk is known: condition all K (Euler) or 2K (midpoint)
         # evaluations with one call per block.
-        solver = self.config.solver
         at = schedules.evaluation_times(times, solver)
         shifts = self.network.time_shifts(at, self._step_sizes(times.shape[0] - 1, at.shape[0], times))
 
         def velocity(x: se3_flow.PoseChunk, j: int) -> se3_flow.PoseVelocity:
             return self.network.velocity(encoded, x, shifts=[s[j : j + 1] for s in shifts])
 
-        x1 = se3_flow.sample(velocity, x0, times, solver)
-        return pose_to_action(x1.r, x1.p, x1.g.clamp(-1.0, 1.0))
+        return x0, velocity
 
     def guided_sample_from_observations(
         self,
@@ -527,15 +504,8 @@ class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
             actions ``(B, H, 10)``.
         """
         obs = self._tokens(poses, state, image_features, points)
-        encoded = self.network.encode_observations(obs)
         noise = se3_flow.LocalNoise(noise_r, noise_p, noise_g)
-        x0 = se3_flow.noise_to_world(noise, encoded.r_ref, encoded.p_ref)
-        k = times.shape[0] - 1
-        shifts = self.network.time_shifts(times[:-1], self._step_sizes(k, k, times))
-
-        def velocity(x: se3_flow.PoseChunk, j: int) -> se3_flow.PoseVelocity:
-            return self.network.velocity(encoded, x, shifts=[s[j : j + 1] for s in shifts])
-
+        x0, velocity = self._flow_start(obs, noise, times, "euler")  # the guidance steers Euler steps
         # Padding rows (weight 0) are zeros, not poses: stand the noise in for them.
         goal = guidance.select(weights > 0, se3_flow.PoseChunk(*action_to_pose(target)), x0)
         x1 = guidance.inpaint_sample(velocity, x0, times, goal, weights, frozen, frozen_path=frozen_path)

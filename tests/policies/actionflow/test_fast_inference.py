@@ -10,18 +10,24 @@ from lerobot_actionflow.policies.actionflow.modeling_actionflow import Actionflo
 from .helpers import random_batch, small_config
 
 
-@pytest.mark.compile
-def test_compiled_sampler_matches_eager():
+def _eager_and_compiled():
+    """Two policies with the same weights: one eager, one with ``compile_sampler``."""
     torch.manual_seed(0)
     eager = ActionflowPolicy(small_config(compile_sampler=False, compile_mode="default")).eval()
     fast = ActionflowPolicy(small_config(compile_sampler=True, compile_mode="default")).eval()
     fast.load_state_dict(eager.state_dict())
+    return eager, fast
+
+
+@pytest.mark.compile
+def test_compiled_sampler_matches_eager():
+    eager, fast = _eager_and_compiled()
     gen = torch.Generator().manual_seed(1)
     batch = random_batch(eager.config, 2, gen)
     noise = se3_flow.draw_local_noise(2, eager.config.horizon, 0.1, generator=gen)
     a_eager = eager.predict_action_chunk(batch, noise=noise, num_inference_steps=2)
     a_fast = fast.predict_action_chunk(batch, noise=noise, num_inference_steps=2)
-    assert fast._compiled_sampler is not None and eager._compiled_sampler is None
+    assert list(fast._compiled_samplers) == [False] and not eager._compiled_samplers
     assert torch.allclose(a_eager, a_fast, atol=1e-4)
     # The output is a fresh tensor, not a buffer a later call would overwrite.
     a_again = fast.predict_action_chunk(
@@ -46,10 +52,7 @@ def test_compiled_sampler_matches_eager():
 @pytest.mark.compile
 def test_compiled_guided_sampler_matches_eager():
     """Guided chunks (``guide_to_previous_chunk``, RTC) through the compiled guided sampler."""
-    torch.manual_seed(0)
-    eager = ActionflowPolicy(small_config(compile_sampler=False, compile_mode="default")).eval()
-    fast = ActionflowPolicy(small_config(compile_sampler=True, compile_mode="default")).eval()
-    fast.load_state_dict(eager.state_dict())
+    eager, fast = _eager_and_compiled()
     gen = torch.Generator().manual_seed(1)
     batch = random_batch(eager.config, 2, gen)
     leftover = batch.pop("action")[:, 3:]
@@ -60,7 +63,7 @@ def test_compiled_guided_sampler_matches_eager():
         a_fast = fast.predict_action_chunk(batch, **kw)
         assert torch.allclose(a_eager, a_fast, atol=1e-4)
         torch.testing.assert_close(a_fast[:, :delay], leftover[:, :delay], rtol=0, atol=0)
-    assert fast._compiled_guided_sampler is not None and eager._compiled_guided_sampler is None
+    assert list(fast._compiled_samplers) == [True] and not eager._compiled_samplers
     # control: the plain chunk of the same noise is another chunk
     assert not torch.allclose(a_fast, fast.predict_action_chunk(batch, noise=noise, num_inference_steps=2))
 
@@ -75,14 +78,15 @@ def test_compile_is_automatic_on_cuda_only():
 def test_compiled_sampler_is_dropped_when_weights_may_change():
     # The CPU sampler is compiled with frozen weights: training or loading weights must recompile.
     policy = ActionflowPolicy(small_config(compile_sampler=True)).eval()
-    policy._compiled_sampler = object()
+    compiled = {False: object(), True: object()}  # the plain and the guided sampler
+    policy._compiled_samplers.update(compiled)
     policy.eval()
-    assert policy._compiled_sampler is not None
+    assert policy._compiled_samplers == compiled
     policy.train()
-    assert policy._compiled_sampler is None
-    policy.eval()._compiled_sampler = object()
+    assert not policy._compiled_samplers
+    policy.eval()._compiled_samplers.update(compiled)
     policy.load_state_dict(policy.state_dict())
-    assert policy._compiled_sampler is None
+    assert not policy._compiled_samplers
 
 
 def test_inference_step_sweep_sets_actionflow_euler_steps():
