@@ -23,7 +23,10 @@ is none) and the figures behind it::
 Only the cells of the study's episode cap of each task are read (:data:`study.STUDY_CAPS`).
 ActionFlow's cells are those of ``--study comparison --settings actionflow``; a task without
 them uses the ablation's runs of the same configuration
-(:data:`study.COMPARISON_ACTIONFLOW_IN_ABLATION`), and the tables say which.
+(:data:`study.COMPARISON_ACTIONFLOW_IN_ABLATION`), and the tables say which. ``--actionflow
+ablation/guided`` reads another setting's cells instead: those runs evaluated with each chunk
+guided toward the previous one, the package's default sampling (the study pins it off
+elsewhere, and in the references' cells).
 """
 
 from __future__ import annotations
@@ -98,9 +101,10 @@ def last_checkpoint(cells: list[dict], inference_steps: int) -> dict | None:
     }
 
 
-def check_reference(cells: list[dict], task: str, reference: str) -> dict:
-    """H1 / H2 on one task: ActionFlow's IS = ``FEW_IS`` mean against ``reference``'s."""
-    af_cells, source = actionflow_cells(cells, task)
+def check_reference(cells: list[dict], task: str, reference: str, source: str | None = None) -> dict:
+    """H1 / H2 on one task: ActionFlow's IS = ``FEW_IS`` mean (its cells from ``source``, see
+    :func:`actionflow_cells`) against ``reference``'s."""
+    af_cells, source = actionflow_cells(cells, task, source)
     ref_cells = [c for c in study_cells(cells, "comparison", task) if c["setting"] == reference]
     af, ref = last_checkpoint(af_cells, FEW_IS), last_checkpoint(ref_cells, FEW_IS)
     out = {"task": task, "source": source, "actionflow": af, "reference": ref, "holds": None}
@@ -114,14 +118,14 @@ def check_reference(cells: list[dict], task: str, reference: str) -> dict:
     return out
 
 
-def check_variants(cells: list[dict], task: str) -> list[dict]:
+def check_variants(cells: list[dict], task: str, source: str | None = None) -> list[dict]:
     """H3 on a ``<name>_D0`` task: per variant and IS, ActionFlow's D1/D2 success as a fraction
     of its D0 success, at the variant's last evaluated checkpoint, over the seeds evaluated on
     both. The variant's cells come from the same runs (study and setting) as the D0 cells."""
     if not task.endswith("_D0"):
         return []
     rows = []
-    d0_cells, source = actionflow_cells(cells, task)
+    d0_cells, source = actionflow_cells(cells, task, source)
     for variant in (task[:-1] + "1", task[:-1] + "2"):
         var_cells, _ = actionflow_cells(cells, variant, source)
         for k in sorted({c["inference_steps"] for c in var_cells}):
@@ -146,11 +150,11 @@ def check_variants(cells: list[dict], task: str) -> list[dict]:
     return rows
 
 
-def check_budget(cells: list[dict], task: str) -> dict:
+def check_budget(cells: list[dict], task: str, source: str | None = None) -> dict:
     """H4 on one task: the best mean over seeds, at any evaluated IS, among the checkpoints
     trained within ``BUDGET_S``. Below the target, "no" needs the first checkpoint past the
     budget to be below it too (else success could cross it in between, unmeasured)."""
-    af_cells, source = actionflow_cells(cells, task)
+    af_cells, source = actionflow_cells(cells, task, source)
     out = {"task": task, "source": source, "best": None, "holds": None}
     groups: dict[tuple[int, int], list[dict]] = {}
     for c in af_cells:
@@ -257,17 +261,26 @@ def main(argv: list[str] | None = None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--tasks", default=",".join(TASKS))
     ap.add_argument("--results", type=Path, default=RESULTS, help="folder of the <task>.json study files")
+    ap.add_argument(
+        "--actionflow",
+        default=None,
+        metavar="STUDY/SETTING",
+        help="read ActionFlow's cells from these runs, e.g. ablation/guided (default: the comparison's "
+        f"actionflow runs, else ablation/{COMPARISON_ACTIONFLOW_IN_ABLATION})",
+    )
     args = ap.parse_args(argv)
+    if args.actionflow is not None and args.actionflow.count("/") != 1:
+        ap.error(f"--actionflow takes STUDY/SETTING, e.g. ablation/guided; got {args.actionflow!r}")
     report = {"h1": [], "h2": [], "h3": [], "h4": []}
     for task in [t for t in args.tasks.split(",") if t]:
         path = args.results / f"{task}.json"
         cells = json.loads(path.read_text())["cells"] if path.exists() else []
         cells = with_cap(cells, STUDY_CAPS.get(task))
-        report["h1"].append(check_reference(cells, task, "diffusion"))
-        report["h2"].append(check_reference(cells, task, "euclidean_flow"))
-        report["h3"] += check_variants(cells, task)
+        report["h1"].append(check_reference(cells, task, "diffusion", args.actionflow))
+        report["h2"].append(check_reference(cells, task, "euclidean_flow", args.actionflow))
+        report["h3"] += check_variants(cells, task, args.actionflow)
         if task in H4_TASKS:
-            report["h4"].append(check_budget(cells, task))
+            report["h4"].append(check_budget(cells, task, args.actionflow))
     print(format_report(report))
     return report
 

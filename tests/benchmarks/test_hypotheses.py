@@ -124,3 +124,27 @@ def test_only_the_studys_episode_cap_is_read(tmp_path):
     report = hypotheses.main(["--tasks", "Lift", "--results", str(tmp_path)])
     (h1,) = report["h1"]
     assert h1["reference"]["seeds"] == [0] and h1["holds"] is True
+
+
+def test_actionflow_cells_can_come_from_another_setting(tmp_path):
+    """``--actionflow ablation/guided`` reads the guided evaluations of the same runs for every
+    hypothesis; without it the plain ones are read (the control)."""
+    plain = [_cell("noise_concentrated", s, 2, 60.0, study="ablation") for s in (0, 1)]
+    guided = [_cell("guided", s, 2, 90.0, study="ablation") for s in (0, 1)]
+    guided += [_cell("guided", s, 2, 85.0, study="ablation", task="StackThree_D1") for s in (0, 1)]
+    refs = [_cell("euclidean_flow", s, 2, 70.0) for s in (0, 1)]
+    (tmp_path / "StackThree_D0.json").write_text(
+        json.dumps({"task": "StackThree_D0", "cells": plain + guided + refs})
+    )
+    args = ["--tasks", "StackThree_D0", "--results", str(tmp_path)]
+    default = hypotheses.main(args)
+    assert default["h2"][0]["holds"] is False and default["h2"][0]["source"] == "ablation/noise_concentrated"
+    assert default["h4"][0]["holds"] is None  # 60 % in the 10 minutes trained: not reached yet
+    assert default["h3"] == []  # the plain runs were not evaluated on D1
+    chosen = hypotheses.main([*args, "--actionflow", "ablation/guided"])
+    assert chosen["h2"][0]["holds"] is True and chosen["h2"][0]["source"] == "ablation/guided"
+    assert chosen["h4"][0]["holds"] is True and chosen["h4"][0]["best"]["success"] == (90.0, 0.0)
+    (d1,) = chosen["h3"]
+    assert d1["kept"] == pytest.approx(85.0 / 90.0) and d1["holds"] is True
+    with pytest.raises(SystemExit):
+        hypotheses.main([*args, "--actionflow", "guided"])
