@@ -146,7 +146,7 @@ def _package_only(policy, obs: dict, k: int, repeats: int) -> dict:
     """The artefact's own call on prepared inputs: what ``predict_action_chunk`` adds around it
     (input checks, noise drawing, the staleness check) is the difference."""
     from lerobot_actionflow.flow import se3 as se3_flow
-    from lerobot_actionflow.policies.actionflow.exported import ArtefactKey
+    from lerobot_actionflow.policies.exported import ArtefactKey
     from lerobot_actionflow.schema import POSES_KEY, STATE_KEY
 
     cfg = policy.config
@@ -171,8 +171,8 @@ def make_checkpoint(workdir: Path, device: str, steps: list[int]) -> tuple[Path,
     sys.path.insert(0, str(HERE))
     from bench_actionflow import make_config
 
-    from lerobot_actionflow.policies.actionflow.exported import EXPORT_DIR, artefact_name
     from lerobot_actionflow.policies.actionflow.modeling_actionflow import ActionflowPolicy
+    from lerobot_actionflow.policies.exported import EXPORT_DIR, artefact_name
 
     ckpt = workdir / "pretrained_model"
     if not (ckpt / "model.safetensors").exists():

@@ -1,4 +1,5 @@
-"""``actionflow-export``: compile a trained ActionFlow checkpoint's sampler ahead of time.
+"""``actionflow-export``: compile a trained checkpoint's sampler ahead of time (``actionflow`` or
+``euclidean_flow``).
 
     actionflow-export CHECKPOINT [--steps 2 4] [--batch-sizes 1] [--device cpu|cuda] [--no-guided]
 
@@ -7,7 +8,7 @@ directory, or a training output whose ``checkpoints/last/pretrained_model`` is u
 and batch size (1 for a robot; the number of envs for ``lerobot-eval``) the sampler is exported
 with ``torch.export`` and compiled by AOTInductor (minutes each on a 2-core CPU), then written to
 ``pretrained_model/exported_sampler/<device>_k<K>_b<B>/`` (see
-:mod:`lerobot_actionflow.policies.actionflow.exported`); with the Euler solver, the guided sampler
+:mod:`lerobot_actionflow.policies.exported`); with the Euler solver, the guided sampler
 too (``..._guided/``: the chunks after an episode's first with ``guide_to_previous_chunk``, the
 default, and ``lerobot-rollout --inference.type=rtc``), unless ``--no-guided``.
 ``from_pretrained``, and so ``lerobot-eval`` and any deployment loop, then samples with them from
@@ -23,8 +24,6 @@ import logging
 import sys
 import time
 from pathlib import Path
-
-from lerobot_actionflow.schema import STATE_DIM
 
 #: Largest difference allowed between exported and eager actions on the same noise.
 EXPORT_TOLERANCE = 1e-5
@@ -49,11 +48,24 @@ def resolve_pretrained_dir(path: str | Path) -> Path:
     )
 
 
-def load_actionflow(pretrained_dir: Path, device: str):
-    """The ActionFlow policy of a checkpoint on ``device``, without its exported samplers.
+def policy_class(policy_type: str):
+    """The policy class of an exportable policy type, or None."""
+    if policy_type == "actionflow":
+        from lerobot_actionflow.policies.actionflow.modeling_actionflow import ActionflowPolicy
+
+        return ActionflowPolicy
+    if policy_type == "euclidean_flow":
+        from lerobot_actionflow.policies.euclidean_flow.modeling_euclidean_flow import EuclideanFlowPolicy
+
+        return EuclideanFlowPolicy
+    return None
+
+
+def load_policy(pretrained_dir: Path, device: str):
+    """The policy of a checkpoint on ``device``, without its exported samplers.
 
     Raises:
-        ValueError: the checkpoint is of another policy type.
+        ValueError: the checkpoint is of a policy type that has no exportable sampler.
     """
     from lerobot.configs.policies import PreTrainedConfig
 
@@ -61,16 +73,52 @@ def load_actionflow(pretrained_dir: Path, device: str):
 
     register_all()
     config = PreTrainedConfig.from_pretrained(pretrained_dir)
-    if config.type != "actionflow":
+    cls = policy_class(config.type)
+    if cls is None:
         raise ValueError(
-            f"{pretrained_dir} holds a '{config.type}' policy; actionflow-export exports 'actionflow'"
+            f"{pretrained_dir} holds a '{config.type}' policy; actionflow-export exports 'actionflow' "
+            "and 'euclidean_flow'"
         )
     config.device = device
-    from lerobot_actionflow.policies.actionflow.modeling_actionflow import ActionflowPolicy
-
-    policy = ActionflowPolicy.from_pretrained(pretrained_dir, config=config)
+    policy = cls.from_pretrained(pretrained_dir, config=config)
     policy.exported_samplers = None
     return policy
+
+
+def random_observations(policy, batch_size: int, generator, device: str) -> dict:
+    """A history ``(B, n_obs_steps, ...)`` of every input feature of the policy's config: poses
+    with random rotations and positions, the rest uniform in ``[0, 1)``."""
+    import torch
+
+    from lerobot_actionflow.geometry import random_rotation
+    from lerobot_actionflow.geometry.se3 import rp_to_pose7
+    from lerobot_actionflow.schema import POSES_KEY
+
+    b, s = batch_size, policy.config.n_obs_steps
+    batch = {}
+    for key, feature in policy.config.input_features.items():
+        if key == POSES_KEY:
+            n = feature.shape[0]
+            r = random_rotation(b, s, n, generator=generator)
+            batch[key] = rp_to_pose7(r, 0.3 * torch.randn(b, s, n, 3, generator=generator))
+        else:
+            batch[key] = torch.rand(b, s, *feature.shape, generator=generator)
+    return {k: v.to(device) for k, v in batch.items()}
+
+
+def random_noise(policy, batch_size: int, generator, device: str):
+    """The initial noise of one chunk in the form the policy's ``predict_action_chunk`` takes."""
+    import torch
+
+    cfg = policy.config
+    if policy.name == "actionflow":
+        from lerobot_actionflow.flow import se3 as se3_flow
+
+        noise = se3_flow.draw_local_noise(
+            batch_size, cfg.horizon, cfg.noise_sigma, cfg.noise_rotation, cfg.noise_kappa, generator=generator
+        )
+        return se3_flow.LocalNoise(noise.r.to(device), noise.p.to(device), noise.g.to(device))
+    return torch.randn(batch_size, cfg.horizon, cfg.action_feature.shape[0], generator=generator).to(device)
 
 
 def check_against_eager(
@@ -88,28 +136,16 @@ def check_against_eager(
     """
     import torch
 
-    from lerobot_actionflow.flow import se3 as se3_flow
-    from lerobot_actionflow.geometry import random_rotation
-    from lerobot_actionflow.geometry.se3 import rp_to_pose7
-    from lerobot_actionflow.policies.actionflow.exported import ArtefactKey
-    from lerobot_actionflow.schema import POSES_KEY, STATE_KEY
+    from lerobot_actionflow.policies.exported import ArtefactKey
 
-    policy = load_actionflow(pretrained_dir, device)
+    policy = load_policy(pretrained_dir, device)
     policy.attach_exported_samplers(pretrained_dir)
     cfg = policy.config
     gen = torch.Generator().manual_seed(0)
     errors = {}
     for b in batch_sizes:
-        s, n = cfg.n_obs_steps, policy.num_entities
-        r, p = random_rotation(b, s, n, generator=gen), 0.3 * torch.randn(b, s, n, 3, generator=gen)
-        batch = {POSES_KEY: rp_to_pose7(r, p), STATE_KEY: 0.02 * torch.rand(b, s, STATE_DIM, generator=gen)}
-        for key, feature in cfg.image_features.items():
-            batch[key] = torch.rand(b, s, *feature.shape, generator=gen)
-        batch = {k: v.to(device) for k, v in batch.items() if k in cfg.input_features}
-        noise = se3_flow.draw_local_noise(
-            b, cfg.horizon, cfg.noise_sigma, cfg.noise_rotation, cfg.noise_kappa, generator=gen
-        )
-        noise = se3_flow.LocalNoise(noise.r.to(device), noise.p.to(device), noise.g.to(device))
+        batch = random_observations(policy, b, gen, device)
+        noise = random_noise(policy, b, gen, device)
         samplers = policy.exported_samplers
         for k in steps:
             policy.exported_samplers = None
@@ -156,11 +192,11 @@ def main(argv: list[str] | None = None) -> int:
     )
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(message)s")
-    from lerobot_actionflow.policies.actionflow.exported import ArtefactKey, export_sampler
+    from lerobot_actionflow.policies.exported import ArtefactKey, export_sampler
 
     try:
         pretrained_dir = resolve_pretrained_dir(args.checkpoint)
-        policy = load_actionflow(pretrained_dir, args.device)
+        policy = load_policy(pretrained_dir, args.device)
     except (FileNotFoundError, ValueError) as e:
         print(f"actionflow-export: {e}", file=sys.stderr)
         return 2

@@ -107,6 +107,7 @@ class DPTransformer(nn.Module):
         else:
             self_mask = torch.zeros(horizon, horizon, dtype=torch.bool)
             memory_mask = torch.zeros(horizon, 1 + n_obs_steps, dtype=torch.bool)
+        self.causal_attn = causal_attn
         self.register_buffer("self_mask", self_mask, persistent=False)
         self.register_buffer("memory_mask", memory_mask, persistent=False)
         self.apply(self._init_weights)
@@ -131,5 +132,13 @@ class DPTransformer(nn.Module):
         memory = torch.cat((time_tok, self.cond_emb(cond)), dim=1) + self.cond_pos  # (B, 1+S, E)
         memory = self.memory_mlp(self.drop(memory))
         tokens = self.drop(self.action_emb(x) + self.action_pos)  # (B, H, E)
-        h = self.decoder(tokens, memory, tgt_mask=self.self_mask, memory_mask=self.memory_mask)
+        # tgt_is_causal states what the mask is, rather than have torch compare it with a causal
+        # mask at every call (a data-dependent check that torch.export cannot trace).
+        h = self.decoder(
+            tokens,
+            memory,
+            tgt_mask=self.self_mask,
+            memory_mask=self.memory_mask,
+            tgt_is_causal=self.causal_attn,
+        )
         return self.head(self.norm(h))

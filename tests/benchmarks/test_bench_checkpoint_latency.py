@@ -139,7 +139,7 @@ def test_guided_cells_guide_every_chunk_toward_the_tail_of_a_plain_one():
 
 
 def test_only_the_named_checkpoints_sample_with_their_exported_samplers():
-    from lerobot_actionflow.policies.actionflow.exported import ArtefactKey
+    from lerobot_actionflow.policies.exported import ArtefactKey
 
     def with_artefacts(*keys):
         policy = CountingPolicy("euler")

@@ -136,7 +136,7 @@ class ActionflowConfig(PreTrainedConfig, RealTimeExecutionConfig):
             1; benchmarks/RESULTS.md). None (default): on when the policy runs on a CUDA device,
             off on the CPU, where the first chunk of every K compiles for 2-3 minutes. An
             artefact of ``actionflow-export`` stored with the checkpoint takes precedence
-            (:mod:`lerobot_actionflow.policies.actionflow.exported`).
+            (:mod:`lerobot_actionflow.policies.exported`).
 
     Execution in real time (App. G), applied by ``select_action``: the fields of
     :class:`lerobot_actionflow.policies.execution.RealTimeExecutionConfig`

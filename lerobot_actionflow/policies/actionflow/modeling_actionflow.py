@@ -15,11 +15,8 @@ import logging
 from collections import deque
 from collections.abc import Callable
 from functools import partial
-from pathlib import Path
 
 import torch
-from huggingface_hub import snapshot_download
-from huggingface_hub.errors import HfHubHTTPError
 from lerobot.policies.pretrained import PreTrainedPolicy
 from lerobot.policies.utils import populate_queues
 from torch import Tensor
@@ -30,7 +27,7 @@ from lerobot_actionflow.geometry import check_finite, check_quaternion, quaterni
 from lerobot_actionflow.nn import ActionFlowNetwork, IPASize, ObservationTokens, PoseAdaptation
 from lerobot_actionflow.nn.image_encoder import ResNet18Encoder
 from lerobot_actionflow.policies.actionflow.configuration_actionflow import ActionflowConfig
-from lerobot_actionflow.policies.actionflow.exported import EXPORT_DIR, ExportedSamplers
+from lerobot_actionflow.policies.actionflow.sampler_program import ActionflowSamplerProgram
 from lerobot_actionflow.policies.execution import (
     PreviousChunk,
     RTCGuidance,
@@ -40,6 +37,7 @@ from lerobot_actionflow.policies.execution import (
     rtc_config_of,
     rtc_guidance,
 )
+from lerobot_actionflow.policies.exported import ExportedSamplerLoading, ExportedSamplers
 from lerobot_actionflow.policies.flow_options import check_rtc_solver, check_shortcut_sampling
 from lerobot_actionflow.policies.inputs import check_num_inference_steps, check_observation
 from lerobot_actionflow.policies.loading import StrictLoading
@@ -49,9 +47,11 @@ from lerobot_actionflow.schema.tensors import action_to_pose, pose_to_action
 logger = logging.getLogger(__name__)
 
 
-class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
+class ActionflowPolicy(ExportedSamplerLoading, StrictLoading, PreTrainedPolicy):
     config_class = ActionflowConfig
     name = "actionflow"
+    #: What ``actionflow-export`` exports (:mod:`lerobot_actionflow.policies.exported`).
+    sampler_program = ActionflowSamplerProgram
 
     def __init__(self, config: ActionflowConfig, **kwargs):
         super().__init__(config)
@@ -104,7 +104,7 @@ class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
             self._observation_shapes[self.point_cloud_key] = tuple(config.point_cloud_feature.shape)
         #: ``torch.compile`` graphs, by program (True: the guided one), made at their first chunk.
         self._compiled_samplers: dict[bool, Callable] = {}
-        #: Exported samplers attached by :meth:`from_pretrained` (or :meth:`attach_exported_samplers`).
+        #: Exported samplers attached by ``from_pretrained`` (or ``attach_exported_samplers``).
         self.exported_samplers: ExportedSamplers | None = None
         self.reset()
 
@@ -295,7 +295,7 @@ class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
         guided by real-time chunking (:meth:`guided_sample_from_observations`).
 
         The sampler used, first that applies: an exported artefact for this program, K, batch
-        size and device (:mod:`~lerobot_actionflow.policies.actionflow.exported`), the
+        size and device (:mod:`~lerobot_actionflow.policies.exported`), the
         ``torch.compile`` graph (``compile_sampler``), eager.
         """
         cfg = self.config
@@ -326,7 +326,7 @@ class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
         use_exported = self.exported_samplers is not None and points is None
         exported = self.exported_samplers.get(device, k, b, guided) if use_exported else None
         if exported is not None:
-            return exported(poses, state, image_features, noise, guide=known or None)
+            return exported(ActionflowSamplerProgram.pack(poses, state, image_features, noise, known or None))
         times = schedules.make_time_grid(k, cfg.time_spacing, cfg.time_spacing_rate, dtype, device)
         args = (poses, state, image_features, noise.r, noise.p, noise.g, times, *known, points)
         sampler = self.guided_sample_from_observations if guided else self.sample_from_observations
@@ -353,29 +353,6 @@ class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
         if device.type == "cpu":
             return torch.compile(sampler, dynamic=False, options={"freezing": True, "cpp_wrapper": True})
         return torch.compile(sampler, mode=self.config.compile_mode, dynamic=False)
-
-    @classmethod
-    def from_pretrained(cls, pretrained_name_or_path, **kwargs):
-        """LeRobot's ``from_pretrained`` (strict), then the checkpoint's exported samplers, if any
-        (:meth:`attach_exported_samplers`)."""
-        policy = super().from_pretrained(pretrained_name_or_path, **kwargs)
-        hub = {k: kwargs[k] for k in ("revision", "cache_dir", "token", "local_files_only") if k in kwargs}
-        policy.attach_exported_samplers(pretrained_name_or_path, **hub)
-        return policy
-
-    def attach_exported_samplers(self, pretrained_name_or_path, **hub_kwargs) -> None:
-        """Use the exported samplers stored with a checkpoint (a local ``pretrained_model``
-        directory or a Hub repository) that match this policy's weights and configuration;
-        refused ones are logged (:mod:`~lerobot_actionflow.policies.actionflow.exported`)."""
-        directory = Path(pretrained_name_or_path)
-        if not directory.is_dir():
-            directory = _download_exported(str(pretrained_name_or_path), hub_kwargs)
-        self.exported_samplers = ExportedSamplers.load(self, directory) if directory is not None else None
-
-    def _save_pretrained(self, save_directory: Path, state_dict=None) -> None:
-        super()._save_pretrained(save_directory, state_dict)
-        if self.exported_samplers is not None and state_dict is None:
-            self.exported_samplers.save(save_directory)
 
     def reset_compiled_sampler(self) -> None:
         """Forget the compiled samplers; the next chunk compiles them again with the current weights."""
@@ -426,8 +403,8 @@ class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
         points: Tensor | None = None,
     ) -> Tensor:
         """The sampler from checked observations to actions, as one tensor-in/tensor-out function
-        (what ``torch.compile`` compiles and :mod:`~lerobot_actionflow.policies.actionflow.exported`
-        exports).
+        (what ``torch.compile`` compiles and :mod:`~lerobot_actionflow.policies.exported`
+        exports, through :class:`ActionflowSamplerProgram`).
 
         Args:
             poses: ``(B, n_obs_steps, N, 7)`` with unit quaternions; state: ``(B, n_obs_steps, 11)``
@@ -488,7 +465,7 @@ class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
     ) -> Tensor:
         """:meth:`sample_from_observations` guided toward known actions (real-time chunking,
         :func:`lerobot_actionflow.flow.guidance.inpaint_sample`): what ``torch.compile`` compiles
-        and :mod:`~lerobot_actionflow.policies.actionflow.exported` exports for guided chunks.
+        and :mod:`~lerobot_actionflow.policies.exported` exports for guided chunks.
 
         Args:
             poses, state, image_features, noise_r, noise_p, noise_g, times, points: as
@@ -587,16 +564,6 @@ class ActionflowPolicy(StrictLoading, PreTrainedPolicy):
             others = eef_scalars.new_zeros(*eef_scalars.shape[:2], self.num_entities - 1, cfg.num_scalars)
             scalars = torch.cat((eef_scalars[:, :, None], others), 2)
         return ObservationTokens(r, p, scalars, image_features, points)
-
-
-def _download_exported(repo_id: str, hub_kwargs: dict) -> Path | None:
-    """The local snapshot of a Hub repository's exported samplers, or None (logged) when the Hub
-    cannot provide them."""
-    try:
-        return Path(snapshot_download(repo_id, allow_patterns=[f"{EXPORT_DIR}/*"], **hub_kwargs))
-    except (HfHubHTTPError, OSError, ValueError) as e:
-        logger.info("actionflow: no exported samplers fetched from %s (%s); sampling eagerly", repo_id, e)
-        return None
 
 
 def _require(batch: dict[str, Tensor], key: str) -> Tensor:

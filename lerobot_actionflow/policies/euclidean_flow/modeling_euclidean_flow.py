@@ -34,15 +34,16 @@ from lerobot_actionflow.flow.schedules import evaluation_times, make_time_grid, 
 from lerobot_actionflow.nn.pointnet import PointNetEncoder
 from lerobot_actionflow.policies.euclidean_flow.backbones import make_backbone
 from lerobot_actionflow.policies.euclidean_flow.configuration_euclidean_flow import EuclideanFlowConfig
+from lerobot_actionflow.policies.euclidean_flow.sampler_program import EuclideanFlowSamplerProgram
 from lerobot_actionflow.policies.execution import (
     PreviousChunk,
-    RTCGuidance,
     TargetSmoother,
     history_with_step,
     plan_chunk,
     rtc_config_of,
     rtc_guidance,
 )
+from lerobot_actionflow.policies.exported import ExportedSamplerLoading, ExportedSamplers
 from lerobot_actionflow.policies.flow_options import check_rtc_solver
 from lerobot_actionflow.policies.inputs import check_num_inference_steps, check_observation
 from lerobot_actionflow.policies.loading import StrictLoading
@@ -100,11 +101,13 @@ class ObservationEncoder(nn.Module):
         return torch.cat(feats, dim=-1)
 
 
-class EuclideanFlowPolicy(StrictLoading, PreTrainedPolicy):
+class EuclideanFlowPolicy(ExportedSamplerLoading, StrictLoading, PreTrainedPolicy):
     """Rectified-flow action-chunking policy (see module docstring)."""
 
     config_class = EuclideanFlowConfig
     name = "euclidean_flow"
+    #: What ``actionflow-export`` exports (:mod:`lerobot_actionflow.policies.exported`).
+    sampler_program = EuclideanFlowSamplerProgram
 
     def __init__(self, config: EuclideanFlowConfig, **kwargs):
         # kwargs: LeRobot's factory passes dataset_stats / dataset_meta; normalisation lives in
@@ -115,6 +118,8 @@ class EuclideanFlowPolicy(StrictLoading, PreTrainedPolicy):
         self.obs_encoder = ObservationEncoder(config)
         self.velocity_net = make_backbone(config, self.obs_encoder.feature_dim)
         self._queues: dict[str, deque] = {}
+        #: Exported samplers attached by ``from_pretrained`` (or ``attach_exported_samplers``).
+        self.exported_samplers: ExportedSamplers | None = None
         self.reset()
 
     def get_optim_params(self):
@@ -210,10 +215,52 @@ class EuclideanFlowPolicy(StrictLoading, PreTrainedPolicy):
         """Full normalised chunk ``(B, H, A)`` from prepared observations ``(B, S, ...)``:
         ``K`` Euler or midpoint steps (``solver``) from ``a_0 = noise`` (``N(0, I)`` if not given)
         on the time grid."""
+        times = self._times(num_inference_steps, time_spacing, obs)
+        return self.sample_from_observations(obs, self._initial_noise(noise, obs), times)
+
+    def sample_from_observations(self, obs: dict[str, Tensor], noise: Tensor, times: Tensor) -> Tensor:
+        """The sampler from prepared observations to the full normalised chunk, on tensors only
+        (what :mod:`lerobot_actionflow.policies.exported` exports, through
+        :class:`EuclideanFlowSamplerProgram`).
+
+        Args:
+            obs: the prepared history (:meth:`_prepare`): ``observation.state (B, S, d_s)``,
+                ``observation.images (B, S, N, C, H, W)``, ``observation.environment_state
+                (B, S, d_e)``, the point cloud, each only if the policy reads it.
+            noise: ``a_0 (B, H, A)``; times: the ``K + 1`` flow times.
+        Returns:
+            ``(B, H, A)``, clipped to ``[-1, 1]`` with ``clip_sample``.
+        """
         cond = self.obs_encoder(obs)  # (B, S, D)
-        noise, times, velocity = self._flow(cond, noise, num_inference_steps, time_spacing)
-        chunk = sample(velocity, noise, times, self.config.solver)
+        chunk = sample(self._velocity(cond, times, self.config.solver), noise, times, self.config.solver)
         return chunk.clamp(-1.0, 1.0) if self.config.clip_sample else chunk
+
+    def guided_sample_from_observations(
+        self,
+        obs: dict[str, Tensor],
+        noise: Tensor,
+        times: Tensor,
+        target: Tensor,
+        weights: Tensor,
+        frozen: Tensor,
+    ) -> Tensor:
+        """:meth:`sample_from_observations` guided toward known actions (real-time chunking,
+        :func:`lerobot_actionflow.flow.guidance.inpaint_sample_euclidean`, Euler steps).
+
+        Args:
+            obs, noise, times: as :meth:`sample_from_observations`.
+            target: the known actions ``(B, H, A)`` aligned with the chunk; weights: ``(B, H)``
+                in ``[0, 1]``; frozen: ``(B, H)`` bool, the actions returned exactly as
+                ``target``'s.
+        """
+        cond = self.obs_encoder(obs)
+        chunk = inpaint_sample_euclidean(
+            self._velocity(cond, times, "euler"), noise, times, target, weights, frozen
+        )
+        if self.config.clip_sample:
+            chunk = chunk.clamp(-1.0, 1.0)
+        # The frozen prefix is the leftover itself, even where it lies outside the clip range.
+        return torch.where(frozen[..., None], target, chunk)
 
     def supports_rtc(self) -> bool:
         """LeRobot's real-time chunking (``lerobot-rollout --inference.type=rtc``) is supported."""
@@ -265,24 +312,46 @@ class EuclideanFlowPolicy(StrictLoading, PreTrainedPolicy):
         prev_chunk_left_over: Tensor | None = None,
         execution_horizon: int | None = None,
     ) -> Tensor:
-        """:meth:`predict_action_chunk` on a prepared history ``(B, n_obs_steps, ...)``."""
+        """:meth:`predict_action_chunk` on a prepared history ``(B, n_obs_steps, ...)``.
+
+        The sampler used: an exported artefact for this program, K, batch size and device
+        (:mod:`~lerobot_actionflow.policies.exported`; on the config's time grid), else eager.
+        """
         rtc = rtc_config_of(self.config)
-        if prev_chunk_left_over is None or rtc is None:
-            return self._from_current_step(self.sample_chunk(obs, noise, num_inference_steps, time_spacing))
-        check_rtc_solver(self.config.solver)
-        cond = self.obs_encoder(obs)
-        guide = rtc_guidance(
-            prev_chunk_left_over.to(cond),
-            inference_delay,
-            self.config.horizon,
-            rtc,
-            batch_size=cond.shape[0],
-            execution_horizon=execution_horizon,
-            offset=self.config.n_obs_steps - 1,
-        )
-        return self._from_current_step(
-            self._sample_rtc(cond, guide, noise, num_inference_steps, time_spacing)
-        )
+        guided = prev_chunk_left_over is not None and rtc is not None
+        known: tuple[Tensor, ...] = ()  # the guided sampler's target, weights, frozen
+        noise = self._initial_noise(noise, obs)
+        if guided:
+            check_rtc_solver(self.config.solver)
+            guide = rtc_guidance(
+                prev_chunk_left_over.to(noise),
+                inference_delay,
+                self.config.horizon,
+                rtc,
+                batch_size=noise.shape[0],
+                execution_horizon=execution_horizon,
+                offset=self.config.n_obs_steps - 1,
+            )
+            action_dim = self.config.action_feature.shape[0]
+            if guide.target.shape[-1] != action_dim:
+                raise ValueError(
+                    f"prev_chunk_left_over must hold actions (..., {action_dim}), got last dimension "
+                    f"{guide.target.shape[-1]}"
+                )
+            known = (guide.target.to(noise), guide.weights.to(noise), guide.frozen.to(noise.device))
+        k = self.config.num_inference_steps if num_inference_steps is None else num_inference_steps
+        on_config_grid = time_spacing in (None, self.config.time_spacing)
+        # Exported artefacts take no point cloud (actionflow-export refuses such policies).
+        if self.exported_samplers is not None and on_config_grid and self.config.point_cloud_key is None:
+            exported = self.exported_samplers.get(
+                noise.device, check_num_inference_steps(k), noise.shape[0], guided
+            )
+            if exported is not None:
+                return self._from_current_step(exported(EuclideanFlowSamplerProgram.pack(obs, noise, known)))
+        times = self._times(k, time_spacing, obs)
+        if guided:
+            return self._from_current_step(self.guided_sample_from_observations(obs, noise, times, *known))
+        return self._from_current_step(self.sample_from_observations(obs, noise, times))
 
     def _observation_history(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
         """The prepared history ``(B, n_obs_steps, ...)`` of a history batch, or of one step
@@ -293,58 +362,40 @@ class EuclideanFlowPolicy(StrictLoading, PreTrainedPolicy):
             return self._prepare(batch, with_time=True)
         return history_with_step(self._queues, self._prepare(batch, with_time=False), ACTION)
 
-    def _flow(
-        self, cond: Tensor, noise: Tensor | None, num_inference_steps: int | None, time_spacing: str | None
-    ) -> tuple[Tensor, Tensor, Callable[[Tensor, int], Tensor]]:
-        """The initial noise ``(B, H, A)`` (drawn if None, else checked), the K + 1 flow times and
-        the velocity field conditioned on ``cond``, indexed by the solver's evaluations
-        (:func:`~lerobot_actionflow.flow.schedules.evaluation_times`)."""
-        shape = (cond.shape[0], self.config.horizon, self.config.action_feature.shape[0])
+    def _initial_noise(self, noise: Tensor | None, obs: dict[str, Tensor]) -> Tensor:
+        """``a_0 (B, H, A)``: ``noise`` checked, or drawn from ``N(0, I)``, in the policy's dtype."""
+        first = next(iter(obs.values()))
+        dtype = next(self.velocity_net.parameters()).dtype
+        shape = (first.shape[0], self.config.horizon, self.config.action_feature.shape[0])
         if noise is None:
-            noise = torch.randn(shape, dtype=cond.dtype, device=cond.device)
-        elif tuple(noise.shape) != shape:
+            return torch.randn(shape, dtype=dtype, device=first.device)
+        if tuple(noise.shape) != shape:
             raise ValueError(f"noise has shape {tuple(noise.shape)}, expected {shape}")
+        return noise.to(dtype)
+
+    def _times(
+        self, num_inference_steps: int | None, time_spacing: str | None, obs: dict[str, Tensor]
+    ) -> Tensor:
+        """The ``K + 1`` flow times (the config's K and grid unless given)."""
         k = self.config.num_inference_steps if num_inference_steps is None else num_inference_steps
-        times = make_time_grid(
+        first = next(iter(obs.values()))
+        return make_time_grid(
             check_num_inference_steps(k),
             time_spacing or self.config.time_spacing,
             rate=self.config.time_spacing_rate,
-            dtype=cond.dtype,
-            device=cond.device,
+            dtype=next(self.velocity_net.parameters()).dtype,
+            device=first.device,
         )
 
-        at = evaluation_times(times, self.config.solver)
+    def _velocity(self, cond: Tensor, times: Tensor, solver: str) -> Callable[[Tensor, int], Tensor]:
+        """The velocity field conditioned on ``cond``, indexed by ``solver``'s evaluations over
+        ``times`` (:func:`~lerobot_actionflow.flow.schedules.evaluation_times`)."""
+        at = evaluation_times(times, solver)
 
         def velocity(a: Tensor, j: int) -> Tensor:
             return self.velocity_net(a, at[j].expand(a.shape[0]), cond)
 
-        return noise.to(cond.dtype), times, velocity
-
-    def _sample_rtc(
-        self,
-        cond: Tensor,
-        guide: RTCGuidance,
-        noise: Tensor | None,
-        num_inference_steps: int | None,
-        time_spacing: str | None,
-    ) -> Tensor:
-        """:meth:`sample_chunk` with real-time-chunking guidance, from encoded observations."""
-        action_dim = self.config.action_feature.shape[0]
-        if guide.target.shape[-1] != action_dim:
-            raise ValueError(
-                f"prev_chunk_left_over must hold actions (..., {action_dim}), got last dimension "
-                f"{guide.target.shape[-1]}"
-            )
-        noise, times, velocity = self._flow(cond, noise, num_inference_steps, time_spacing)
-        target = guide.target.to(cond.device)
-        frozen = guide.frozen.to(cond.device)
-        chunk = inpaint_sample_euclidean(
-            velocity, noise, times, target, guide.weights.to(cond.device), frozen
-        )
-        if self.config.clip_sample:
-            chunk = chunk.clamp(-1.0, 1.0)
-        # The frozen prefix is the leftover itself, even where it lies outside the clip range.
-        return torch.where(frozen[..., None], target, chunk)
+        return velocity
 
     def _from_current_step(self, chunk: Tensor) -> Tensor:
         return chunk[:, self.config.n_obs_steps - 1 :]

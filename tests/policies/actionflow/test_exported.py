@@ -7,36 +7,18 @@ never load it); the real export (AOTInductor, minutes on a 2-core CPU) is opt-in
 
 import logging
 import shutil
-from dataclasses import asdict
-from typing import ClassVar
 
 import pytest
 import torch
 
 from lerobot_actionflow.flow import se3 as se3_flow
-from lerobot_actionflow.policies.actionflow import exported as ex
+from lerobot_actionflow.policies import exported as ex
 from lerobot_actionflow.policies.actionflow.modeling_actionflow import ActionflowPolicy
 from lerobot_actionflow.schema.tensors import action_to_pose
 
+from ..exported_stand_in import StandInRunner, used_artefact, write_stand_in
 from .helpers import random_batch, small_config, transform_batch
 from .test_equivariance import _equivariance_error, _random_transform, _sample_twice
-
-#: What the stand-in package returns: no sampler of a real policy gives these actions.
-MARK = 7.0
-
-
-class StandInRunner:
-    """Replaces the loaded package: records its inputs and answers :data:`MARK`."""
-
-    calls: ClassVar[list] = []
-
-    def __init__(self, package, manifest):
-        self.package, self.manifest = package, manifest
-
-    def __call__(self, inputs):
-        StandInRunner.calls.append([t.shape for t in inputs])
-        horizon = inputs[-1].shape[1]
-        return torch.full((inputs[0].shape[0], horizon, 10), MARK)
 
 
 @pytest.fixture
@@ -56,25 +38,10 @@ PLAIN_K2 = ex.ArtefactKey("cpu", 2, 2)
 GUIDED_K2 = ex.ArtefactKey("cpu", 2, 2, guided=True)
 
 
-def write_stand_in(policy, path, k, batch_size=2, guided=False, **manifest_changes):
-    artefact = path / ex.EXPORT_DIR / ex.artefact_name("cpu", k, batch_size, guided)
-    artefact.mkdir(parents=True, exist_ok=True)
-    (artefact / ex.PACKAGE_FILE).write_bytes(b"stand-in package")
-    package_sha256 = ex.file_fingerprint(artefact / ex.PACKAGE_FILE)
-    manifest = ex.expected_manifest(policy, "cpu", k, batch_size, package_sha256, guided=guided)
-    fields = {**asdict(manifest), **manifest_changes}
-    ex.Manifest(**fields).write(artefact / ex.MANIFEST_FILE)
-    return artefact
-
-
 def chunk(policy, k=2, batch_size=2):
     return policy.predict_action_chunk(
         random_batch(policy.config, batch_size, torch.Generator().manual_seed(1)), num_inference_steps=k
     )
-
-
-def used_artefact(actions) -> bool:
-    return bool((actions == MARK).all())
 
 
 def test_a_matching_artefact_is_used_from_the_first_chunk(checkpoint):
@@ -238,8 +205,8 @@ def test_the_exported_programs_trace_to_the_eager_actions(guided):
 
     torch.manual_seed(0)
     policy = ActionflowPolicy(small_config()).eval()
-    program = ex.SamplerProgram(policy, 2, guided)
-    example = ex._example_inputs(policy, 2, torch.device("cpu"), guided)
+    program = policy.sampler_program(policy, 2, guided)
+    example = program.example_inputs(2, torch.device("cpu"))
     graph = torch.export.export(program, example, strict=False).module()
 
     gen = torch.Generator().manual_seed(4)

@@ -203,7 +203,7 @@ def test_a_cloud_in_the_dataset_is_ignored_without_the_key():
 
 
 def test_export_refuses_point_cloud_policies(tmp_path):
-    from lerobot_actionflow.policies.actionflow.exported import export_sampler
+    from lerobot_actionflow.policies.exported import export_sampler
 
     with pytest.raises(ValueError, match=r"reads the point cloud 'observation\.point_cloud'"):
         export_sampler(_policy(), tmp_path, num_inference_steps=2)

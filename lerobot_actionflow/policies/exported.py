@@ -1,18 +1,18 @@
-"""Ahead-of-time exported ActionFlow samplers, stored with a checkpoint.
+"""Ahead-of-time exported samplers of the flow policies (``actionflow``, ``euclidean_flow``),
+stored with a checkpoint.
 
-An *artefact* is ActionFlow's whole K-step sampler exported with ``torch.export`` and compiled
-by AOTInductor into a shared library, with the weights frozen in as constants. Loading one is a
-``dlopen``: no Python tracing, no compile wait, no guards, one C++ call per chunk. There are two
-programs:
+An *artefact* is a policy's whole K-step sampler exported with ``torch.export`` and compiled by
+AOTInductor into a shared library, with the weights frozen in as constants. Loading one is a
+``dlopen``: no Python tracing, no compile wait, no guards, one C++ call per chunk. Each policy
+names its program class (``sampler_program``: the module that gets exported, its inputs and
+their example values); there are two programs per policy:
 
-* plain (:meth:`ActionflowPolicy.sample_from_observations`): checked observations and initial
-  noise in, the ``(B, H, 10)`` action chunk out. It serves an episode's first chunk, and every
-  chunk when the guidance is off.
-* guided (:meth:`ActionflowPolicy.guided_sample_from_observations`): the same inputs, then the
-  known actions ``(B, H, 10)``, their guidance weights ``(B, H)`` and the frozen mask ``(B, H)``
-  (real-time chunking: ``guide_to_previous_chunk``, the default, and
-  ``lerobot-rollout --inference.type=rtc``). The delay and the weights are inputs, so one
-  artefact serves every delay.
+* plain: checked observations and initial noise in, the normalised ``(B, H, A)`` action chunk
+  out. It serves an episode's first chunk, and every chunk when the guidance is off.
+* guided: the same inputs, then the known actions ``(B, H, A)``, their guidance weights
+  ``(B, H)`` and the frozen mask ``(B, H)`` (real-time chunking: ``guide_to_previous_chunk``, the
+  default, and ``lerobot-rollout --inference.type=rtc``). The delay and the weights are inputs,
+  so one artefact serves every delay.
 
 Layout, inside a checkpoint's ``pretrained_model/`` directory::
 
@@ -20,14 +20,15 @@ Layout, inside a checkpoint's ``pretrained_model/`` directory::
     exported_sampler/<device>_k<K>_b<B>[_guided]/manifest.json   what it was built from
 
 An artefact is used only when its manifest matches the policy that loads it: the same format,
-policy type and torch version, the SHA-256 of the weights (every tensor of the
-state dict, in name order, with its dtype and shape) and of the configuration (every field
-except those listed in :data:`SAMPLER_INDEPENDENT_FIELDS`), and the SHA-256 of ``sampler.pt2``
-itself. Anything else is refused with a log line naming the difference, and that K samples
-eagerly. After loading, the parameters' version counters are watched: an in-place change
-(an optimiser step, ``load_state_dict``) makes the next chunk re-hash the weights, and
-artefacts whose weights no longer match are dropped with a log line. Writes through ``.data``
-bypass the version counters; call :meth:`ExportedSamplers.verify` after such an edit.
+policy type and torch version, the program's inputs, the SHA-256 of the weights (every tensor
+of the state dict, in name order, with its dtype and shape) and of the configuration (every
+field except those listed in :data:`SAMPLER_INDEPENDENT_FIELDS`), and the SHA-256 of
+``sampler.pt2`` itself. Anything else is refused with a log line naming the difference, and
+that K samples eagerly. After loading, the parameters' version counters are watched: an
+in-place change (an optimiser step, ``load_state_dict``) makes the next chunk re-hash the
+weights, and artefacts whose weights no longer match are dropped with a log line. Writes
+through ``.data`` bypass the version counters; call :meth:`ExportedSamplers.verify` after such
+an edit.
 
 Each artefact serves one program, device type, K and batch size B (static shapes: inductor's
 autotuned GEMMs are specialised to them; 1 for a robot, the number of envs for ``lerobot-eval``).
@@ -44,11 +45,14 @@ import shutil
 import tempfile
 from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass, fields
+from functools import partial
 from pathlib import Path
 from typing import NamedTuple
 
 import draccus
 import torch
+from huggingface_hub import snapshot_download
+from huggingface_hub.errors import HfHubHTTPError
 from torch import Tensor, nn
 
 from lerobot_actionflow.policies.execution import RealTimeExecutionConfig
@@ -62,10 +66,11 @@ PACKAGE_FILE = "sampler.pt2"
 MANIFEST_FILE = "manifest.json"
 #: Bumped whenever the artefact's calling convention or manifest changes.
 FORMAT_VERSION = 2
-#: Configuration fields that do not change what the sampler computes for a given K (they act
-#: before or after it, or only in training; the execution options decide which chunk is guided
-#: and how, through the guided program's inputs). Every other field is part of the fingerprint,
-#: so a field added later can only cause a refusal, never a stale artefact.
+#: Configuration fields (of either policy; a name a config lacks is ignored) that do not change
+#: what the sampler computes for a given K: they act before or after it, only in training, or
+#: only through the weights (the execution options decide which chunk is guided and how,
+#: through the guided program's inputs). Every other field is part of the fingerprint, so a
+#: field added later can only cause a refusal, never a stale artefact.
 SAMPLER_INDEPENDENT_FIELDS = frozenset(
     {f.name for f in fields(RealTimeExecutionConfig)}
     | {
@@ -97,6 +102,13 @@ SAMPLER_INDEPENDENT_FIELDS = frozenset(
         "optimizer_weight_decay",
         "optimizer_grad_clip_norm",
         "scheduler_warmup_steps",
+        "scheduler_name",
+        "drop_n_last_frames",
+        "do_mask_loss_for_padding",
+        "p_drop_emb",
+        "p_drop_attn",
+        "gradient_checkpointing",
+        "pretrained_backbone_weights",
     }
 )
 
@@ -171,10 +183,7 @@ class Manifest:
     """What an artefact was built from (``manifest.json``).
 
     Attributes:
-        inputs: the tensors the package takes, in order (``observation.poses``, then
-            ``observation.state`` and ``image_features`` when the policy reads them, then
-            ``noise_r``, ``noise_p``, ``noise_g``, then for the guided program ``target``,
-            ``weights``, ``frozen``).
+        inputs: the tensors the package takes, in order (the program's ``input_names``).
         batch_size: the batch size the package takes.
         guided: the guided program (module docstring).
     """
@@ -231,88 +240,6 @@ class Manifest:
         return out
 
 
-class SamplerProgram(nn.Module):
-    """The module that gets exported: :meth:`ActionflowPolicy.sample_from_observations` (or, guided,
-    :meth:`ActionflowPolicy.guided_sample_from_observations`) with K's flow times as a constant,
-    taking only the tensors the policy reads."""
-
-    def __init__(self, policy, num_inference_steps: int, guided: bool = False):
-        super().__init__()
-        from lerobot_actionflow.flow import schedules
-
-        cfg = policy.config
-        self.policy = policy
-        self.guided = guided
-        self.has_state = bool(cfg.num_scalars)
-        self.has_images = bool(policy.image_keys)
-        self.register_buffer(
-            "times",
-            schedules.make_time_grid(
-                num_inference_steps, cfg.time_spacing, cfg.time_spacing_rate, torch.float32, "cpu"
-            ),
-            persistent=False,
-        )
-
-    def input_names(self) -> tuple[str, ...]:
-        from lerobot_actionflow.schema import POSES_KEY, STATE_KEY
-
-        names = [POSES_KEY]
-        if self.has_state:
-            names.append(STATE_KEY)
-        if self.has_images:
-            names.append("image_features")
-        names += ["noise_r", "noise_p", "noise_g"]
-        if self.guided:
-            names += ["target", "weights", "frozen"]
-        return tuple(names)
-
-    def forward(self, *inputs: Tensor) -> Tensor:
-        it = iter(inputs)
-        poses = next(it)
-        state = next(it) if self.has_state else None
-        image_features = next(it) if self.has_images else None
-        noise = next(it), next(it), next(it)
-        times = self.times.to(poses.dtype)
-        if not self.guided:
-            return self.policy.sample_from_observations(poses, state, image_features, *noise, times)
-        target, weights, frozen = it
-        return self.policy.guided_sample_from_observations(
-            poses, state, image_features, *noise, times, target, weights, frozen, frozen_path=True
-        )
-
-
-def _example_inputs(
-    policy, batch_size: int, device: torch.device, guided: bool = False
-) -> tuple[Tensor, ...]:
-    """Valid inputs of the program's shapes (identity rotations; the values do not matter)."""
-    from lerobot_actionflow.schema import STATE_DIM
-    from lerobot_actionflow.schema.tensors import pose_to_action
-
-    cfg = policy.config
-    s, n, h = cfg.n_obs_steps, policy.num_entities, cfg.horizon
-    poses = torch.zeros(batch_size, s, n, 7, device=device)
-    poses[..., 6] = 1.0
-    out = [poses]
-    if cfg.num_scalars:
-        out.append(torch.zeros(batch_size, s, STATE_DIM, device=device))
-    if policy.image_keys:
-        from lerobot_actionflow.nn.image_encoder import ResNet18Encoder
-
-        out.append(torch.zeros(batch_size, s, len(policy.image_keys), ResNet18Encoder.out_dim, device=device))
-
-    # Every input its own tensor: torch.export treats one tensor passed twice as one input.
-    def eye() -> Tensor:
-        return torch.eye(3, device=device).expand(batch_size, h, 3, 3).contiguous()
-
-    def zeros(*shape: int, dtype=torch.float32) -> Tensor:
-        return torch.zeros(batch_size, h, *shape, device=device, dtype=dtype)
-
-    out += [eye(), zeros(3), zeros()]
-    if guided:
-        out += [pose_to_action(eye(), zeros(3), zeros()), zeros(), zeros(dtype=torch.bool)]
-    return tuple(out)
-
-
 def expected_manifest(
     policy,
     device: str,
@@ -324,14 +251,14 @@ def expected_manifest(
 ) -> Manifest:
     """The manifest an artefact of this policy for ``device``, K, batch size and program must carry
     (``weights_sha256``: the policy's :func:`weights_fingerprint`, when already computed)."""
-    program = SamplerProgram(policy, num_inference_steps, guided)
+    program = policy.sampler_program(policy, num_inference_steps, guided)
     return Manifest(
         format=FORMAT_VERSION,
         policy=policy.name,
         device=device,
         num_inference_steps=num_inference_steps,
         torch=torch.__version__,
-        dtype=str(policy._dtype).removeprefix("torch."),
+        dtype=str(next(policy.parameters()).dtype).removeprefix("torch."),
         weights_sha256=weights_sha256 or weights_fingerprint(policy),
         config_sha256=config_fingerprint(policy.config),
         package_sha256=package_sha256,
@@ -378,8 +305,8 @@ def export_sampler(
     if guided:
         check_rtc_solver(policy.config.solver)
     policy = policy.to(device).eval()
-    program = SamplerProgram(policy, num_inference_steps, guided).to(device).eval()
-    example = _example_inputs(policy, batch_size, torch.device(device), guided)
+    program = policy.sampler_program(policy, num_inference_steps, guided).to(device).eval()
+    example = program.example_inputs(batch_size, torch.device(device))
     with torch.no_grad():
         exported = torch.export.export(program, example, strict=False)
     final = Path(directory) / EXPORT_DIR / artefact_name(device, num_inference_steps, batch_size, guided)
@@ -433,11 +360,6 @@ class _Runner:
         return self._run(inputs)[0]
 
 
-#: The guided program's extra inputs: the known actions ``(B, H, 10)``, the weights ``(B, H)`` and
-#: the frozen mask ``(B, H)`` (:meth:`ActionflowPolicy.guided_sample_from_observations`).
-Guide = tuple[Tensor, Tensor, Tensor]
-
-
 class ExportedSamplers:
     """The artefacts a policy may use, by :class:`ArtefactKey`, with the staleness checks of the
     module docstring."""
@@ -469,10 +391,10 @@ class ExportedSamplers:
 
     def get(
         self, device: torch.device, num_inference_steps: int, batch_size: int, guided: bool = False
-    ) -> Callable | None:
-        """A callable ``(poses, state, image_features, noise, guide=None) -> actions`` for this
-        device, K, batch size and program (``guide``: :data:`Guide`, for the guided one), or None
-        (logged once per key) when there is none or it no longer matches."""
+    ) -> Callable[[list[Tensor]], Tensor] | None:
+        """A callable taking the program's inputs (a list in the order of its ``input_names``) and
+        returning the chunk, for this device, K, batch size and program; or None (logged once per
+        key) when there is none or it no longer matches."""
         key = ArtefactKey(device.type, num_inference_steps, batch_size, guided)
         if self._versions != self._parameter_versions():
             self.verify()
@@ -482,24 +404,14 @@ class ExportedSamplers:
                 self._reported_misses.add(key)
                 have = ", ".join(k.describe() for k in self.keys())
                 logger.warning(
-                    "actionflow: no exported sampler for %s (exported: %s); sampling eagerly",
-                    key.describe(), have,
+                    "%s: no exported sampler for %s (exported: %s); sampling eagerly",
+                    self._policy.name, key.describe(), have,
                 )  # fmt: skip
             return None
-        return lambda poses, state, image_features, noise, guide=None: self._call(
-            runner, poses, state, image_features, noise, guide
-        )
+        return partial(self._call, runner)
 
     @staticmethod
-    def _call(runner: _Runner, poses, state, image_features, noise, guide: Guide | None = None) -> Tensor:
-        inputs = [poses]
-        if state is not None:
-            inputs.append(state)
-        if image_features is not None:
-            inputs.append(image_features)
-        inputs += [noise.r, noise.p, noise.g]
-        if guide is not None:
-            inputs += list(guide)
+    def _call(runner: _Runner, inputs: list[Tensor]) -> Tensor:
         if len(inputs) != len(runner.manifest.inputs):
             raise ValueError(
                 f"the exported sampler {runner.package} takes {list(runner.manifest.inputs)}, "
@@ -513,9 +425,9 @@ class ExportedSamplers:
         for key, runner in list(self._runners.items()):
             if runner.manifest.weights_sha256 != fingerprint:
                 logger.warning(
-                    "actionflow: the policy's weights changed since the exported sampler %s was "
+                    "%s: the policy's weights changed since the exported sampler %s was "
                     "loaded; not using it (%s samples eagerly)",
-                    runner.package, key.describe(),
+                    self._policy.name, runner.package, key.describe(),
                 )  # fmt: skip
                 del self._runners[key]
         self._versions = self._parameter_versions()
@@ -550,7 +462,9 @@ def _load_artefact(policy, artefact: Path, weights_sha256: str) -> _Runner | Non
     """The runner of one artefact directory, or None with a log line saying why it is refused."""
 
     def refuse(why: str) -> None:
-        logger.warning("actionflow: not using the exported sampler %s: %s; sampling eagerly", artefact, why)
+        logger.warning(
+            "%s: not using the exported sampler %s: %s; sampling eagerly", policy.name, artefact, why
+        )
 
     try:
         manifest = Manifest.read(artefact / MANIFEST_FILE)
@@ -586,4 +500,46 @@ def _load_artefact(policy, artefact: Path, weights_sha256: str) -> _Runner | Non
         return _Runner(package, manifest)
     except (RuntimeError, AttributeError) as e:
         refuse(f"the package does not load: {e}")
+        return None
+
+
+class ExportedSamplerLoading:
+    """Policy mixin: ``from_pretrained`` attaches the checkpoint's exported samplers
+    (:meth:`attach_exported_samplers`) and ``save_pretrained`` carries those in use. The policy
+    sets ``exported_samplers = None`` in its ``__init__`` and names its ``sampler_program``."""
+
+    exported_samplers: ExportedSamplers | None
+
+    @classmethod
+    def from_pretrained(cls, pretrained_name_or_path, **kwargs):
+        """LeRobot's ``from_pretrained``, then the checkpoint's exported samplers, if any."""
+        policy = super().from_pretrained(pretrained_name_or_path, **kwargs)
+        hub = {k: kwargs[k] for k in ("revision", "cache_dir", "token", "local_files_only") if k in kwargs}
+        policy.attach_exported_samplers(pretrained_name_or_path, **hub)
+        return policy
+
+    def attach_exported_samplers(self, pretrained_name_or_path, **hub_kwargs) -> None:
+        """Use the exported samplers stored with a checkpoint (a local ``pretrained_model``
+        directory or a Hub repository) that match this policy's weights and configuration;
+        refused ones are logged (module docstring)."""
+        directory = Path(pretrained_name_or_path)
+        if not directory.is_dir():
+            directory = _download_exported(self.name, str(pretrained_name_or_path), hub_kwargs)
+        self.exported_samplers = ExportedSamplers.load(self, directory) if directory is not None else None
+
+    def _save_pretrained(self, save_directory: Path, state_dict=None) -> None:
+        super()._save_pretrained(save_directory, state_dict)
+        if self.exported_samplers is not None and state_dict is None:
+            self.exported_samplers.save(save_directory)
+
+
+def _download_exported(policy_name: str, repo_id: str, hub_kwargs: dict) -> Path | None:
+    """The local snapshot of a Hub repository's exported samplers, or None (logged) when the Hub
+    cannot provide them."""
+    try:
+        return Path(snapshot_download(repo_id, allow_patterns=[f"{EXPORT_DIR}/*"], **hub_kwargs))
+    except (HfHubHTTPError, OSError, ValueError) as e:
+        logger.info(
+            "%s: no exported samplers fetched from %s (%s); sampling eagerly", policy_name, repo_id, e
+        )
         return None
