@@ -26,7 +26,9 @@ them uses the ablation's runs of the same configuration
 (:data:`study.COMPARISON_ACTIONFLOW_IN_ABLATION`), and the tables say which. ``--actionflow
 ablation/guided`` reads another setting's cells instead: those runs evaluated with each chunk
 guided toward the previous one, the package's default sampling (the study pins it off
-elsewhere, and in the references' cells).
+elsewhere, and in the references' cells). ``--actionflow-results TASK=FILE`` reads a task's
+ActionFlow cells from another cell store (runs trained longer, or again on another machine),
+the references' from the task's own.
 """
 
 from __future__ import annotations
@@ -50,6 +52,8 @@ from study import (
 )
 
 TASKS = ("Lift", "Square", "StackThree_D0", "Threading_D0", "Coffee_D0")
+#: The comparison's setting ActionFlow is held against, per hypothesis.
+REFERENCES = {"h1": "diffusion", "h2": "euclidean_flow"}
 H4_TASKS = ("StackThree_D0", "Threading_D0", "Square")
 KEPT_FRACTION = 0.9
 TARGET_SUCCESS, BUDGET_S = 80.0, 3600.0
@@ -210,7 +214,7 @@ def _row(*values) -> str:
 def format_report(report: dict) -> str:
     caps = ", ".join(f"{task} {cap} control steps" for task, cap in STUDY_CAPS.items() if cap)
     lines = [f"Cells of the study's episode caps only ({caps}; other tasks: their own).", ""]
-    for key, reference in (("h1", "diffusion"), ("h2", "euclidean_flow")):
+    for key, reference in REFERENCES.items():
         lines += [
             f"{key.upper()}: ActionFlow >= {reference} at IS={FEW_IS} on every task "
             "(last checkpoint, mean +- std over seeds)",
@@ -257,6 +261,19 @@ def format_report(report: dict) -> str:
     return "\n".join(lines)
 
 
+def _load_cells(path: Path, task: str, required: bool) -> list[dict]:
+    """The cells of the store ``path`` (written for ``task``); none if it is missing and not
+    ``required``."""
+    if not path.exists():
+        if required:
+            raise SystemExit(f"{path}: no such cell store (given for {task})")
+        return []
+    store = json.loads(path.read_text())
+    if store.get("task") != task:
+        raise SystemExit(f"{path}: a cell store of task {store.get('task')!r}, not {task!r}")
+    return store["cells"]
+
+
 def main(argv: list[str] | None = None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--tasks", default=",".join(TASKS))
@@ -268,16 +285,32 @@ def main(argv: list[str] | None = None) -> dict:
         help="read ActionFlow's cells from these runs, e.g. ablation/guided (default: the comparison's "
         f"actionflow runs, else ablation/{COMPARISON_ACTIONFLOW_IN_ABLATION})",
     )
+    ap.add_argument(
+        "--actionflow-results",
+        nargs="+",
+        default=[],
+        metavar="TASK=FILE",
+        help="read TASK's ActionFlow cells from FILE (a cell store of other runs, e.g. longer or "
+        "retrained ones); the references' cells still come from the task's own file",
+    )
     args = ap.parse_args(argv)
     if args.actionflow is not None and args.actionflow.count("/") != 1:
         ap.error(f"--actionflow takes STUDY/SETTING, e.g. ablation/guided; got {args.actionflow!r}")
+    af_files = {}
+    for item in args.actionflow_results:
+        task, sep, file = item.partition("=")
+        if not sep or not task or not file:
+            ap.error(f"--actionflow-results takes TASK=FILE; got {item!r}")
+        af_files[task] = Path(file)
     report = {"h1": [], "h2": [], "h3": [], "h4": []}
     for task in [t for t in args.tasks.split(",") if t]:
-        path = args.results / f"{task}.json"
-        cells = json.loads(path.read_text())["cells"] if path.exists() else []
+        cells = _load_cells(args.results / f"{task}.json", task, required=False)
+        if task in af_files:
+            refs = [c for c in cells if c["study"] == "comparison" and c["setting"] in REFERENCES.values()]
+            cells = refs + _load_cells(af_files[task], task, required=True)
         cells = with_cap(cells, STUDY_CAPS.get(task))
-        report["h1"].append(check_reference(cells, task, "diffusion", args.actionflow))
-        report["h2"].append(check_reference(cells, task, "euclidean_flow", args.actionflow))
+        for key, reference in REFERENCES.items():
+            report[key].append(check_reference(cells, task, reference, args.actionflow))
         report["h3"] += check_variants(cells, task, args.actionflow)
         if task in H4_TASKS:
             report["h4"].append(check_budget(cells, task, args.actionflow))

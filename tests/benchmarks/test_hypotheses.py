@@ -148,3 +148,35 @@ def test_actionflow_cells_can_come_from_another_setting(tmp_path):
     assert d1["kept"] == pytest.approx(85.0 / 90.0) and d1["holds"] is True
     with pytest.raises(SystemExit):
         hypotheses.main([*args, "--actionflow", "guided"])
+
+
+def test_actionflow_cells_can_come_from_another_store(tmp_path):
+    """``--actionflow-results TASK=FILE`` replaces ActionFlow's cells of TASK (here runs that
+    score 60 % instead of 90 %) and keeps the references' cells of the task's own store; without
+    it the task's own ActionFlow cells are read (the control)."""
+    own = [_cell("guided", s, 2, 90.0, study="ablation") for s in (0, 1)]
+    refs = [_cell("euclidean_flow", s, 2, 70.0) for s in (0, 1)]
+    other = [_cell("guided", s, 2, 60.0, study="ablation") for s in (0, 1)]
+    other += [_cell("guided", s, 2, 30.0, study="ablation", task="StackThree_D1") for s in (0, 1)]
+    (tmp_path / "StackThree_D0.json").write_text(json.dumps({"task": "StackThree_D0", "cells": own + refs}))
+    (tmp_path / "other.json").write_text(json.dumps({"task": "StackThree_D0", "cells": other}))
+    args = ["--tasks", "StackThree_D0", "--results", str(tmp_path), "--actionflow", "ablation/guided"]
+    assert hypotheses.main(args)["h2"][0]["holds"] is True
+    report = hypotheses.main([*args, "--actionflow-results", f"StackThree_D0={tmp_path / 'other.json'}"])
+    (h2,) = report["h2"]
+    assert h2["holds"] is False and h2["actionflow"]["success"] == (60.0, 0.0)
+    assert h2["reference"]["success"] == (70.0, 0.0)
+    (d1,) = report["h3"]
+    assert d1["kept"] == pytest.approx(0.5)
+
+
+def test_a_store_of_another_task_or_a_missing_one_is_refused(tmp_path):
+    cells = [_cell("guided", 0, 2, 60.0, study="ablation", task="Square")]
+    (tmp_path / "square.json").write_text(json.dumps({"task": "Square", "cells": cells}))
+    args = ["--tasks", "StackThree_D0", "--results", str(tmp_path), "--actionflow-results"]
+    with pytest.raises(SystemExit, match="a cell store of task 'Square', not 'StackThree_D0'"):
+        hypotheses.main([*args, f"StackThree_D0={tmp_path / 'square.json'}"])
+    with pytest.raises(SystemExit, match=r"missing\.json: no such cell store"):
+        hypotheses.main([*args, f"StackThree_D0={tmp_path / 'missing.json'}"])
+    with pytest.raises(SystemExit):
+        hypotheses.main([*args, "StackThree_D0"])
