@@ -261,6 +261,48 @@ def format_report(report: dict) -> str:
     return "\n".join(lines)
 
 
+def plot_report(report: dict, path: Path) -> None:
+    """PNG with two panels: per task, success at IS = ``FEW_IS`` (mean +- std over seeds, last
+    checkpoint) of ActionFlow and each reference (H1, H2; a missing policy has no bar); and per
+    Mimicgen-style task and IS, ActionFlow's mean success on D0, D1 and D2 over the seeds
+    evaluated on both (H3)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    tasks = [c["task"] for c in report["h1"]]
+    policies = {"actionflow": {c["task"]: c["actionflow"] for c in report["h1"]}}
+    for key, reference in REFERENCES.items():
+        policies[reference] = {c["task"]: c["reference"] for c in report[key]}
+    fig, (bars, variants) = plt.subplots(1, 2, figsize=(11, 3.8), dpi=110)
+    width = 0.8 / len(policies)
+    for j, (policy, rows) in enumerate(policies.items()):
+        at = [(i, rows[t]["success"]) for i, t in enumerate(tasks) if rows.get(t) is not None]
+        xs = [i + (j - (len(policies) - 1) / 2) * width for i, _ in at]
+        bars.bar(xs, [m for _, (m, _) in at], width, yerr=[sd for _, (_, sd) in at], capsize=2, label=policy)
+    bars.set_xticks(range(len(tasks)), tasks, rotation=20, ha="right", fontsize=8)
+    bars.set(ylabel=f"success % at IS={FEW_IS} (last checkpoint)", ylim=(0, 105), title="H1, H2")
+    bars.legend(fontsize=8)
+    groups: dict[tuple[str, int], dict[str, float]] = {}
+    for r in report["h3"]:
+        if "d0" in r:
+            group = groups.setdefault((r["task"].removesuffix("_D0"), r["inference_steps"]), {})
+            group["D0"], group[r["variant"][-2:]] = r["d0"], r["success"]
+    labels = [f"{name}, IS={k}" for name, k in groups]
+    for j, variant in enumerate(("D0", "D1", "D2")):
+        xs = [i + (j - 1) * 0.27 for i, g in enumerate(groups.values()) if variant in g]
+        variants.bar(xs, [g[variant] for g in groups.values() if variant in g], 0.27, label=variant)
+    variants.set_xticks(range(len(labels)), labels, rotation=20, ha="right", fontsize=8)
+    variants.set(ylabel="success % (mean over seeds)", ylim=(0, 105), title="H3: trained on D0")
+    if groups:
+        variants.legend(fontsize=8)
+    fig.tight_layout()
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path)
+    plt.close(fig)
+
+
 def _load_cells(path: Path, task: str, required: bool) -> list[dict]:
     """The cells of the store ``path`` (written for ``task``); none if it is missing and not
     ``required``."""
@@ -293,6 +335,7 @@ def main(argv: list[str] | None = None) -> dict:
         help="read TASK's ActionFlow cells from FILE (a cell store of other runs, e.g. longer or "
         "retrained ones); the references' cells still come from the task's own file",
     )
+    ap.add_argument("--plot", type=Path, default=None, help="also write the H1-H3 figures as a PNG here")
     args = ap.parse_args(argv)
     if args.actionflow is not None and args.actionflow.count("/") != 1:
         ap.error(f"--actionflow takes STUDY/SETTING, e.g. ablation/guided; got {args.actionflow!r}")
@@ -315,6 +358,9 @@ def main(argv: list[str] | None = None) -> dict:
         if task in H4_TASKS:
             report["h4"].append(check_budget(cells, task, args.actionflow))
     print(format_report(report))
+    if args.plot is not None:
+        plot_report(report, args.plot)
+        print(f"plot: {args.plot}")
     return report
 
 

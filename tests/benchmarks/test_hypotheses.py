@@ -180,3 +180,12 @@ def test_a_store_of_another_task_or_a_missing_one_is_refused(tmp_path):
         hypotheses.main([*args, f"StackThree_D0={tmp_path / 'missing.json'}"])
     with pytest.raises(SystemExit):
         hypotheses.main([*args, "StackThree_D0"])
+
+
+def test_the_figure_is_written_beside_the_report(tmp_path):
+    cells = [_cell("actionflow", 0, 2, 90.0), _cell("diffusion", 0, 2, 10.0)]
+    cells += [_cell("actionflow", 0, 2, 45.0, task="StackThree_D1")]
+    (tmp_path / "StackThree_D0.json").write_text(json.dumps({"task": "StackThree_D0", "cells": cells}))
+    plot = tmp_path / "figs" / "hypotheses.png"
+    hypotheses.main(["--tasks", "StackThree_D0,Square", "--results", str(tmp_path), "--plot", str(plot)])
+    assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
