@@ -24,7 +24,9 @@ store and the summaries): ``--study ablation`` (ActionFlow's defaults) or ``--st
 (actionflow, euclidean_flow, diffusion) trains every chosen setting with every seed in
 ``--seeds``, saving a checkpoint every ``--eval-every`` steps, and evaluates the checkpoints
 (all of them, or the last with ``--eval-checkpoints last``) on the task and ``--variants``, at
-every IS of ``--inference-steps`` and every grid of ``--time-spacings``. Each evaluation is one
+every IS of ``--inference-steps`` and every grid of ``--time-spacings``, and with ``--scenes
+objects,robot`` on the task's scene-transformed layouts (cells of evaluation task
+``<task>+scene_objects`` / ``<task>+scene_robot``). Each evaluation is one
 cell of ``--results`` (default ``benchmarks/results/<task>.json``), written as it finishes; a
 rerun skips the cells and the training runs that exist. Prints mean +- std over seeds, and for
 runs evaluated at several checkpoints the success against steps with the step from which it
@@ -93,6 +95,9 @@ SCENES = {
         "--env.scene_move_robot=true",
     ],
 }
+#: Short names of the scene transforms for ``--scenes`` (study mode); a study's cells of a scene
+#: have the evaluation task ``<task>+scene_<short name>``.
+SCENE_NAMES = dict(zip(("objects", "robot"), SCENES, strict=True))
 
 
 def _bin(name: str) -> str:
@@ -190,7 +195,13 @@ def run_study(args, env: dict, data: Path, repo_id: str, collect) -> int:
     seeds = [int(s) for s in args.seeds.split(",")]
     steps = [int(k) for k in args.inference_steps.split(",")]
     spacings = [s for s in args.time_spacings.split(",") if s]
-    eval_tasks = [args.task, *[v for v in args.variants.split(",") if v]]
+    scenes = [n for n in args.scenes.split(",") if n]
+    if unknown := sorted(set(scenes) - set(SCENE_NAMES)):
+        raise SystemExit(f"unknown --scenes {unknown}; known: {sorted(SCENE_NAMES)}")
+    # evaluation task of the cells -> (env task, env overrides)
+    targets = {t: (t, []) for t in [args.task, *[v for v in args.variants.split(",") if v]]}
+    targets |= {f"{args.task}+scene_{n}": (args.task, SCENES[SCENE_NAMES[n]]) for n in scenes}
+    eval_tasks = list(targets)
     store = ResultStore(args.results or REPO / "benchmarks" / "results" / f"{args.task}.json", args.task)
     out = args.output.resolve()
     for base in [] if args.report else names:
@@ -253,7 +264,8 @@ def run_study(args, env: dict, data: Path, repo_id: str, collect) -> int:
                     *([] if spacing == "checkpoint" else [f"--time_spacing={spacing}"]),
                     *setting.sampling,
                 ]
-                for row in _sweep([ckpts[step]], eval_task, todo, extra, where, args, env):
+                env_task, scene = targets[eval_task]
+                for row in _sweep([ckpts[step]], env_task, todo, [*extra, *scene], where, args, env):
                     store.add(
                         {
                             "study": args.study, "setting": name, "policy": setting.policy,
@@ -336,6 +348,12 @@ def main(argv: list[str] | None = None) -> int:
     )
     study.add_argument(
         "--results", type=Path, default=None, help="cell store (default benchmarks/results/<task>.json)"
+    )
+    study.add_argument(
+        "--scenes",
+        default="",
+        help="also evaluate on the scene-transformed layouts (yaw +-45 deg, shift +-0.1 m): "
+        "objects (the objects moved), robot (the objects and the robot moved together)",
     )
     study.add_argument(
         "--cameras", default="", help="record, train and evaluate with these cameras (e.g. wrist,agentview)"

@@ -210,6 +210,31 @@ def test_a_sampling_only_setting_evaluates_the_runs_it_names_without_training(tm
     assert len(capped) == 2
 
 
+def test_scene_transformed_layouts_are_cells_of_their_own(tmp_path, monkeypatch):
+    """``--scenes robot`` evaluates the task's env with the scene and the robot moved, into cells
+    of evaluation task ``<task>+scene_robot`` beside the task's own."""
+    import run_results
+
+    swept = []
+
+    def fake_sweep(checkpoints, task, steps, extra, out, *a, **k):
+        swept.append((task, tuple(extra)))
+        return _fake_sweep(checkpoints, task, steps, extra, out)
+
+    monkeypatch.setattr(run_results, "_train", lambda run, *a, **k: _fake_checkpoint(run, b"w"))
+    monkeypatch.setattr(run_results, "_sweep", fake_sweep)
+    results = tmp_path / "cells.json"
+    common = [*_study_args(tmp_path, results), "--settings", "default", "--inference-steps", "2"]
+    assert run_results.main([*common, "--scenes", "robot"]) == 0
+    (plain, moved) = swept
+    assert plain[0] == moved[0] == "Lift"
+    assert "--env.scene_move_robot=true" in moved[1] and not any("scene" in e for e in plain[1])
+    tasks = sorted(c["eval_task"] for c in ResultStore(results, "Lift").cells.values())
+    assert tasks == ["Lift", "Lift+scene_robot"]
+    with pytest.raises(SystemExit, match="unknown --scenes"):
+        run_results.main([*common, "--scenes", "robots"])
+
+
 @pytest.mark.parametrize(
     ("means", "plateau"),
     [
