@@ -49,6 +49,7 @@ FEW_STEP = (
     "noise_sigma_0.2",
     "shortcut",
     "shortcut_concentrated",
+    "shortcut_guided",
     "solver_midpoint",
 )
 #: The ``default`` runs sampled on the exponential time grid, as a row of the tables.

@@ -13,7 +13,11 @@ is none) and the figures behind it::
   and wall-clock may differ (an equal budget is either), and both are printed.
 - **H3**: ActionFlow keeps >= :data:`KEPT_FRACTION` of its D0 success on the D1 and D2
   variants: the D0 runs' checkpoints evaluated on ``<name>_D1`` and ``<name>_D2`` (the variant's
-  last evaluated step), per IS, over the seeds evaluated on both at that step.
+  last evaluated step), per IS, over the seeds evaluated on both at that step. Beside it, why:
+  the same setting trained on the variant's own demonstrations (``<variant>.json``, written by
+  ``run_results.py --task <variant>``), and the D0 runs on scene-transformed D0 layouts
+  (``run_results.py --scenes robot,objects``): a rigid motion of the whole scene, which an
+  equivariant policy should not notice, and the objects moved together relative to the robot.
 - **H4**: ActionFlow reaches >= :data:`TARGET_SUCCESS` % within :data:`BUDGET_S` of training on
   :data:`H4_TASKS`: among the checkpoints whose training time (the run's ``train_wall_s`` times
   ``step / train_steps``: one CPU core per run here) is within the budget, the best mean over
@@ -47,6 +51,7 @@ from study import (
     mean_std,
     protocol_mismatch,
     protocol_of,
+    scene_task,
     study_cells,
     with_cap,
 )
@@ -122,10 +127,49 @@ def check_reference(cells: list[dict], task: str, reference: str, source: str | 
     return out
 
 
-def check_variants(cells: list[dict], task: str, source: str | None = None) -> list[dict]:
+def _kept_row(d0_cells: list[dict], moved_cells: list[dict], k: int, step: int) -> dict:
+    """Success on moved layouts as a fraction of D0 success (``kept``), both the mean over the
+    seeds evaluated on both at IS ``k`` and ``step``; ``why`` where there is no fraction."""
+    at = (k, step)
+    d0 = {c["seed"]: c["pc_success"] for c in d0_cells if (c["inference_steps"], c["step"]) == at}
+    on = {c["seed"]: c["pc_success"] for c in moved_cells if (c["inference_steps"], c["step"]) == at}
+    seeds = sorted(set(d0) & set(on))
+    row = {"inference_steps": k, "step": step, "seeds": seeds, "kept": None}
+    if not seeds:
+        row["why"] = f"D0 not evaluated with these seeds at step {step}"
+        return row
+    base, moved = statistics.fmean(d0[s] for s in seeds), statistics.fmean(on[s] for s in seeds)
+    row.update(d0=base, success=moved)
+    if base > 0:
+        row["kept"] = moved / base
+    else:
+        row["why"] = "D0 is 0 %"
+    return row
+
+
+def trained_on_variant(cells: list[dict], variant: str, k: int, source: str | None, d0_protocol) -> dict:
+    """ActionFlow's runs trained on ``variant``'s own demonstrations (``cells``: the variant's
+    cell store), evaluated there at IS ``k``: :func:`last_checkpoint`, or ``why`` not."""
+    own = last_checkpoint(actionflow_cells(cells, variant, source)[0], k)
+    if own is None:
+        return {"why": f"not trained on {variant}" if not cells else f"not evaluated at IS={k}"}
+    if mismatch := protocol_mismatch(d0_protocol, own["protocol"], ("the D0 runs", f"the {variant} runs")):
+        return {"why": mismatch}
+    return own
+
+
+def check_variants(
+    cells: list[dict],
+    task: str,
+    source: str | None = None,
+    variant_stores: dict[str, list[dict]] | None = None,
+) -> list[dict]:
     """H3 on a ``<name>_D0`` task: per variant and IS, ActionFlow's D1/D2 success as a fraction
     of its D0 success, at the variant's last evaluated checkpoint, over the seeds evaluated on
-    both. The variant's cells come from the same runs (study and setting) as the D0 cells."""
+    both. The variant's cells come from the same runs (study and setting) as the D0 cells.
+    ``variant_stores`` (variant -> its own cell store) adds each row's ``trained_on_variant``:
+    the same setting trained on the variant's demonstrations and evaluated there, which tells a
+    harder task from one whose layouts the D0 demonstrations do not cover."""
     if not task.endswith("_D0"):
         return []
     rows = []
@@ -133,24 +177,34 @@ def check_variants(cells: list[dict], task: str, source: str | None = None) -> l
     for variant in (task[:-1] + "1", task[:-1] + "2"):
         var_cells, _ = actionflow_cells(cells, variant, source)
         for k in sorted({c["inference_steps"] for c in var_cells}):
-            var = last_checkpoint(var_cells, k)
-            at = (k, var["step"])
-            d0 = {c["seed"]: c["pc_success"] for c in d0_cells if (c["inference_steps"], c["step"]) == at}
-            on = {c["seed"]: c["pc_success"] for c in var_cells if (c["inference_steps"], c["step"]) == at}
-            seeds = sorted(set(d0) & set(on))
-            row = {"task": task, "variant": variant, "inference_steps": k, "step": var["step"],
-                   "source": source, "seeds": seeds, "kept": None, "holds": None}  # fmt: skip
-            if not seeds:
-                row["why"] = f"D0 not evaluated with these seeds at step {var['step']}"
-            else:
-                base, moved = statistics.fmean(d0[s] for s in seeds), statistics.fmean(on[s] for s in seeds)
-                row.update(d0=base, success=moved)
-                if base > 0:
-                    row["kept"] = moved / base
-                    row["holds"] = row["kept"] >= KEPT_FRACTION
-                else:
-                    row["why"] = "D0 is 0 %"
+            step = last_checkpoint(var_cells, k)["step"]
+            row = {"task": task, "variant": variant, "source": source, "holds": None}
+            row |= _kept_row(d0_cells, var_cells, k, step)
+            if row["kept"] is not None:
+                row["holds"] = row["kept"] >= KEPT_FRACTION
+            own_store = (variant_stores or {}).get(variant, [])
+            row["trained_on_variant"] = trained_on_variant(
+                own_store, variant, k, source, protocol_of(d0_cells)
+            )
             rows.append(row)
+    return rows
+
+
+def check_scenes(cells: list[dict], task: str, source: str | None = None) -> list[dict]:
+    """H3's control: per scene transform and IS, ActionFlow's success on ``task``'s layouts moved
+    by the transform (cells of :func:`study.scene_task`, the same runs as the D0 cells) as a
+    fraction of its D0 success over common seeds. With the robot moved too, the initial state is
+    a rigid motion of a D0 state, so an equivariant policy keeps its success up to the arm's
+    reach and joint limits; with the objects only, the objects keep their relative poses but meet
+    the robot at poses the D0 demonstrations do not show."""
+    rows = []
+    d0_cells, source = actionflow_cells(cells, task, source)
+    prefix = scene_task(task, "")
+    for eval_task in sorted({c["eval_task"] for c in cells if c["eval_task"].startswith(prefix)}):
+        moved, _ = actionflow_cells(cells, eval_task, source)
+        for k in sorted({c["inference_steps"] for c in moved}):
+            row = {"task": task, "scene": eval_task.removeprefix(prefix), "source": source}
+            rows.append(row | _kept_row(d0_cells, moved, k, last_checkpoint(moved, k)["step"]))
     return rows
 
 
@@ -207,6 +261,12 @@ def _fmt(row: dict | None) -> str:
     return f"{m:.0f} +- {s:.0f} (n={len(row['seeds'])}, step {row['step']}{minutes})"
 
 
+def _kept_columns(row: dict) -> tuple[str, str, str]:
+    """D0 %, moved %, kept fraction of a :func:`_kept_row`, '-' where missing."""
+    d0, on = (f"{row[k]:.0f}" if k in row else "-" for k in ("d0", "success"))
+    return d0, on, "-" if row["kept"] is None else f"{row['kept']:.0%}"
+
+
 def _row(*values) -> str:
     return "| " + " | ".join(str(v) for v in values) + " |"
 
@@ -235,17 +295,41 @@ def format_report(report: dict) -> str:
     lines.append("")
     if report["h3"]:
         lines += [
-            _row("task", "variant", "IS", "seeds", "D0 %", "variant %", "kept", "holds"),
-            _row("---", "---", "---:", "---:", "---:", "---:", "---:", "---"),
+            _row(
+                "task",
+                "variant",
+                "IS",
+                "seeds",
+                "D0 %",
+                "variant %",
+                "kept",
+                "holds",
+                "trained on the variant",
+            ),
+            _row("---", "---", "---:", "---:", "---:", "---:", "---:", "---", "---"),
         ]
     else:
         lines.append("No D1/D2 evaluations are stored.")
     for r in report["h3"]:
-        d0, on = (f"{r[k]:.0f}" if k in r else "-" for k in ("d0", "success"))
-        kept = "-" if r["kept"] is None else f"{r['kept']:.0%}"
-        holds = _verdict(r)
-        seeds = len(r["seeds"])
-        lines.append(_row(r["task"], r["variant"], r["inference_steps"], seeds, d0, on, kept, holds))
+        d0, on, kept = _kept_columns(r)
+        own = r["trained_on_variant"]
+        own = own["why"] if "why" in own else _fmt(own)
+        lines.append(
+            _row(
+                r["task"], r["variant"], r["inference_steps"], len(r["seeds"]), d0, on, kept, _verdict(r), own
+            )
+        )
+    if report["h3_scenes"]:
+        lines += [
+            "",
+            "H3's control: the D0 runs on scene-transformed D0 layouts (robot: the whole scene moved "
+            "rigidly, robot included; objects: the objects moved together, the robot not)",
+            "",
+            _row("task", "scene", "IS", "seeds", "D0 %", "scene %", "kept"),
+            _row("---", "---", "---:", "---:", "---:", "---:", "---:"),
+        ]
+    for r in report["h3_scenes"]:
+        lines.append(_row(r["task"], r["scene"], r["inference_steps"], len(r["seeds"]), *_kept_columns(r)))
     lines += [
         "",
         f"H4: ActionFlow >= {TARGET_SUCCESS:.0f} % within {BUDGET_S / 60:.0f} minutes of CPU training "
@@ -345,7 +429,7 @@ def main(argv: list[str] | None = None) -> dict:
         if not sep or not task or not file:
             ap.error(f"--actionflow-results takes TASK=FILE; got {item!r}")
         af_files[task] = Path(file)
-    report = {"h1": [], "h2": [], "h3": [], "h4": []}
+    report = {"h1": [], "h2": [], "h3": [], "h3_scenes": [], "h4": []}
     for task in [t for t in args.tasks.split(",") if t]:
         cells = _load_cells(args.results / f"{task}.json", task, required=False)
         if task in af_files:
@@ -354,7 +438,13 @@ def main(argv: list[str] | None = None) -> dict:
         cells = with_cap(cells, STUDY_CAPS.get(task))
         for key, reference in REFERENCES.items():
             report[key].append(check_reference(cells, task, reference, args.actionflow))
-        report["h3"] += check_variants(cells, task, args.actionflow)
+        variants = [task[:-1] + d for d in "12"] if task.endswith("_D0") else []
+        own = {
+            v: with_cap(_load_cells(args.results / f"{v}.json", v, required=False), STUDY_CAPS.get(v))
+            for v in variants
+        }
+        report["h3"] += check_variants(cells, task, args.actionflow, own)
+        report["h3_scenes"] += check_scenes(cells, task, args.actionflow)
         if task in H4_TASKS:
             report["h4"].append(check_budget(cells, task, args.actionflow))
     print(format_report(report))

@@ -61,6 +61,7 @@ from study import (
     format_curves,
     format_summary,
     plot_study,
+    scene_task,
     summarise,
     with_cap,
 )
@@ -200,7 +201,7 @@ def run_study(args, env: dict, data: Path, repo_id: str, collect) -> int:
         raise SystemExit(f"unknown --scenes {unknown}; known: {sorted(SCENE_NAMES)}")
     # evaluation task of the cells -> (env task, env overrides)
     targets = {t: (t, []) for t in [args.task, *[v for v in args.variants.split(",") if v]]}
-    targets |= {f"{args.task}+scene_{n}": (args.task, SCENES[SCENE_NAMES[n]]) for n in scenes}
+    targets |= {scene_task(args.task, n): (args.task, SCENES[SCENE_NAMES[n]]) for n in scenes}
     eval_tasks = list(targets)
     store = ResultStore(args.results or REPO / "benchmarks" / "results" / f"{args.task}.json", args.task)
     out = args.output.resolve()

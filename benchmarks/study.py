@@ -121,6 +121,13 @@ ABLATIONS: dict[str, Setting] = {
         ("--policy.few_step_objective=shortcut", "--policy.noise_rotation=concentrated"),
         "the shortcut objective with concentrated initial rotations: for one-step sampling",
     ),
+    "shortcut_guided": Setting(
+        "actionflow",
+        (),
+        "the shortcut_concentrated runs, each chunk guided toward the previous one",
+        trained_as="shortcut_concentrated",
+        sampling=("--guide_to_previous_chunk=true",),
+    ),
     "time_beta_noise": Setting(
         "actionflow",
         ("--policy.train_time_distribution=beta", "--policy.train_time_beta=[1.0,1.5]"),
@@ -224,6 +231,12 @@ class ResultStore:
 #: Lift is capped at 200 (10 s at 20 Hz; the expert needs 62 on average) to save evaluation time;
 #: it counts a slow success as a failure. Reports read the cells of this cap only.
 STUDY_CAPS: dict[str, int | None] = {"Lift": 200}
+
+
+def scene_task(task: str, scene: str) -> str:
+    """The evaluation task of the study cells on ``task``'s initial layouts moved by the scene
+    transform ``scene`` (a short name of ``run_results.SCENE_NAMES``: ``objects``, ``robot``)."""
+    return f"{task}+scene_{scene}"
 
 
 def with_cap(cells: list[dict], episode_length: int | None) -> list[dict]:

@@ -189,3 +189,47 @@ def test_the_figure_is_written_beside_the_report(tmp_path):
     plot = tmp_path / "figs" / "hypotheses.png"
     hypotheses.main(["--tasks", "StackThree_D0,Square", "--results", str(tmp_path), "--plot", str(plot)])
     assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_variant_rows_name_the_runs_trained_on_the_variant(tmp_path):
+    """A variant's own store (``<variant>.json``) gives the same setting trained on the variant's
+    demonstrations; another setting's runs there, or another protocol, give none (the controls)."""
+    d0 = [_cell("guided", s, 2, 90.0, study="ablation") for s in (0, 1)]
+    d0 += [_cell("guided", s, 2, 45.0, study="ablation", task="StackThree_D1") for s in (0, 1)]
+    own = [
+        _cell("guided", s, 2, v, study="ablation", task="StackThree_D1") for s, v in ((0, 70.0), (1, 50.0))
+    ]
+    own += [_cell("noise_concentrated", 0, 2, 99.0, study="ablation", task="StackThree_D1")]
+    for name, cells in (("StackThree_D0", d0), ("StackThree_D1", own)):
+        (tmp_path / f"{name}.json").write_text(json.dumps({"task": name, "cells": cells}))
+    args = ["--tasks", "StackThree_D0", "--results", str(tmp_path), "--actionflow", "ablation/guided"]
+    (d1,) = hypotheses.main(args)["h3"]
+    assert d1["kept"] == pytest.approx(0.5) and d1["trained_on_variant"]["success"] == (60.0, 10.0)
+    (plain,) = hypotheses.check_variants(
+        [dict(c, setting="noise_concentrated") for c in d0], "StackThree_D0", "ablation/noise_concentrated",
+        {"StackThree_D1": own},
+    )  # fmt: skip
+    assert plain["trained_on_variant"]["success"] == (99.0, 0.0)
+    (other,) = hypotheses.check_variants(
+        d0, "StackThree_D0", "ablation/guided", {"StackThree_D1": [dict(c, batch_size=256) for c in own]}
+    )
+    assert other["trained_on_variant"] == {"why": "training protocols differ in batch_size"}
+    (none,) = hypotheses.check_variants(d0, "StackThree_D0", "ablation/guided")
+    assert none["trained_on_variant"] == {"why": "not trained on StackThree_D1"}
+
+
+def test_scene_rows_compare_the_same_runs_on_moved_layouts(tmp_path, capsys):
+    d0 = [_cell("guided", s, 2, v, study="ablation") for s, v in ((0, 90.0), (1, 80.0), (2, 70.0))]
+    moved = "StackThree_D0+scene_robot"
+    robot = [_cell("guided", s, 2, v, study="ablation", task=moved) for s, v in ((0, 90.0), (1, 70.0))]
+    objects = [_cell("guided", 0, 2, 45.0, study="ablation", task="StackThree_D0+scene_objects")]
+    objects += [_cell("noise_concentrated", 1, 2, 0.0, study="ablation", task="StackThree_D0+scene_objects")]
+    (tmp_path / "StackThree_D0.json").write_text(
+        json.dumps({"task": "StackThree_D0", "cells": d0 + robot + objects})
+    )
+    args = ["--tasks", "StackThree_D0", "--results", str(tmp_path), "--actionflow", "ablation/guided"]
+    rows = {r["scene"]: r for r in hypotheses.main(args)["h3_scenes"]}
+    assert rows["robot"]["seeds"] == [0, 1] and rows["robot"]["kept"] == pytest.approx(80.0 / 85.0)
+    assert rows["objects"]["seeds"] == [0] and rows["objects"]["kept"] == pytest.approx(0.5)
+    assert "| StackThree_D0 | objects | 2 | 1 | 90 | 45 | 50% |" in capsys.readouterr().out
+    assert hypotheses.check_scenes(d0, "StackThree_D0", "ablation/guided") == []
