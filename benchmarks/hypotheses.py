@@ -346,10 +346,11 @@ def format_report(report: dict) -> str:
 
 
 def plot_report(report: dict, path: Path) -> None:
-    """PNG with two panels: per task, success at IS = ``FEW_IS`` (mean +- std over seeds, last
-    checkpoint) of ActionFlow and each reference (H1, H2; a missing policy has no bar); and per
+    """PNG with three panels: per task, success at IS = ``FEW_IS`` (mean +- std over seeds, last
+    checkpoint) of ActionFlow and each reference (H1, H2; a missing policy has no bar); per
     Mimicgen-style task and IS, ActionFlow's mean success on D0, D1 and D2 over the seeds
-    evaluated on both (H3)."""
+    evaluated on both, and hatched that of the runs trained on the variant (H3); and per task,
+    scene transform and IS, the D0 runs on D0 and on the moved layouts (H3's control)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -359,7 +360,7 @@ def plot_report(report: dict, path: Path) -> None:
     policies = {"actionflow": {c["task"]: c["actionflow"] for c in report["h1"]}}
     for key, reference in REFERENCES.items():
         policies[reference] = {c["task"]: c["reference"] for c in report[key]}
-    fig, (bars, variants) = plt.subplots(1, 2, figsize=(11, 3.8), dpi=110)
+    fig, (bars, variants, control) = plt.subplots(1, 3, figsize=(15, 3.8), dpi=110)
     width = 0.8 / len(policies)
     for j, (policy, rows) in enumerate(policies.items()):
         at = [(i, rows[t]["success"]) for i, t in enumerate(tasks) if rows.get(t) is not None]
@@ -373,18 +374,41 @@ def plot_report(report: dict, path: Path) -> None:
         if "d0" in r:
             group = groups.setdefault((r["task"].removesuffix("_D0"), r["inference_steps"]), {})
             group["D0"], group[r["variant"][-2:]] = r["d0"], r["success"]
-    labels = [f"{name}, IS={k}" for name, k in groups]
-    for j, variant in enumerate(("D0", "D1", "D2")):
-        xs = [i + (j - 1) * 0.27 for i, g in enumerate(groups.values()) if variant in g]
-        variants.bar(xs, [g[variant] for g in groups.values() if variant in g], 0.27, label=variant)
-    variants.set_xticks(range(len(labels)), labels, rotation=20, ha="right", fontsize=8)
-    variants.set(ylabel="success % (mean over seeds)", ylim=(0, 105), title="H3: trained on D0")
-    if groups:
-        variants.legend(fontsize=8)
+            if "success" in r["trained_on_variant"]:
+                group[f"{r['variant'][-2:]}, trained there"] = r["trained_on_variant"]["success"][0]
+    _grouped_bars(variants, groups, ("D0", "D1", "D2", "D1, trained there", "D2, trained there"))
+    variants.set(
+        ylabel="success % (mean over seeds)",
+        ylim=(0, 105),
+        title="H3: D0 runs on D1, D2 (hatched: trained there)",
+    )
+    scenes: dict[tuple[str, int], dict[str, float]] = {}
+    for r in report["h3_scenes"]:
+        if "d0" in r:
+            scenes[(f"{r['task']} {r['scene']}", r["inference_steps"])] = {
+                "D0, the same seeds": r["d0"],
+                "moved layouts": r["success"],
+            }
+    _grouped_bars(control, scenes, ("D0, the same seeds", "moved layouts"))
+    control.set(ylabel="success % (mean over seeds)", ylim=(0, 105), title="H3's control: scene transforms")
     fig.tight_layout()
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path)
     plt.close(fig)
+
+
+def _grouped_bars(ax, groups: dict[tuple[str, int], dict[str, float]], names) -> None:
+    """One bar per name present in each ``(task, IS)`` group, groups side by side on ``ax``."""
+    width = 0.8 / max(len(names), 1)
+    for j, name in enumerate(names):
+        at = [(i, g[name]) for i, g in enumerate(groups.values()) if name in g]
+        xs = [i + (j - (len(names) - 1) / 2) * width for i, _ in at]
+        ax.bar(xs, [v for _, v in at], width, label=name, hatch="//" if "trained there" in name else None)
+    ax.set_xticks(
+        range(len(groups)), [f"{task}, IS={k}" for task, k in groups], rotation=20, ha="right", fontsize=8
+    )
+    if groups:
+        ax.legend(fontsize=7)
 
 
 def _load_cells(path: Path, task: str, required: bool) -> list[dict]:
