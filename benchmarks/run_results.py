@@ -68,7 +68,13 @@ from study import (
 from train_runs import run_logged, train_run
 
 from lerobot_actionflow.data.staging import exclusive_lock
-from lerobot_actionflow.evaluation.provenance import DIGEST_KEY, check_same_weights, weights_digest
+from lerobot_actionflow.evaluation.provenance import (
+    DIGEST_KEY,
+    MACHINE_KEY,
+    check_same_weights,
+    machine_description,
+    weights_digest,
+)
 
 POLICIES = ("actionflow", "euclidean_flow", "diffusion")
 REPO = Path(__file__).resolve().parents[1]
@@ -204,6 +210,7 @@ def run_study(args, env: dict, data: Path, repo_id: str, collect) -> int:
     targets |= {scene_task(args.task, n): (args.task, SCENES[SCENE_NAMES[n]]) for n in scenes}
     eval_tasks = list(targets)
     store = ResultStore(args.results or REPO / "benchmarks" / "results" / f"{args.task}.json", args.task)
+    machine = machine_description(args.device)
     out = args.output.resolve()
     for base in [] if args.report else names:
         setting = settings[base]
@@ -283,7 +290,7 @@ def run_study(args, env: dict, data: Path, repo_id: str, collect) -> int:
                             "image_size": args.image_size if args.cameras else None,
                             "episode_length": args.episode_length,
                             "date": time.strftime("%Y-%m-%d", time.gmtime()),
-                            DIGEST_KEY: digests[step],
+                            DIGEST_KEY: digests[step], MACHINE_KEY: machine,
                         }
                     )  # fmt: skip
     cells = with_cap(list(store.cells.values()), args.episode_length)

@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import hashlib
 import logging
+import os
+import platform
 from collections.abc import Iterable
 from pathlib import Path
 
@@ -18,6 +20,33 @@ from huggingface_hub.constants import SAFETENSORS_SINGLE_FILE
 
 #: The key of a stored cell that holds the digest of the weights it was measured with.
 DIGEST_KEY = "weights_sha256"
+#: The key of a stored cell that names the machine it was trained and measured on.
+MACHINE_KEY = "machine"
+CPUINFO = Path("/proc/cpuinfo")
+
+
+def machine_description(device: str = "cpu", cpuinfo: Path = CPUINFO) -> str:
+    """``"<CPU model>, <n> CPUs"``, plus the GPU's name when ``device`` is a CUDA device.
+
+    Stored beside results because training is bit-identical only on one kind of machine: the same
+    seed trains other weights on another CPU model, and wall-clock figures depend on it too. The
+    model is ``cpuinfo``'s first ``model name`` (Linux), else :func:`platform.processor`.
+    """
+    model = ""
+    if cpuinfo.is_file():
+        for line in cpuinfo.read_text(errors="replace").splitlines():
+            key, sep, value = line.partition(":")
+            if sep and key.strip() == "model name":
+                model = value.strip()
+                break
+    description = (
+        f"{model or platform.processor() or platform.machine() or 'unknown CPU'}, {os.cpu_count()} CPUs"
+    )
+    if device.startswith("cuda"):
+        import torch
+
+        description += f", {torch.cuda.get_device_name(torch.device(device))}"
+    return description
 
 
 def weights_digest(pretrained_dir: str | Path) -> str:
