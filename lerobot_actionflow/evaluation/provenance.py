@@ -20,7 +20,9 @@ from huggingface_hub.constants import SAFETENSORS_SINGLE_FILE
 
 #: The key of a stored cell that holds the digest of the weights it was measured with.
 DIGEST_KEY = "weights_sha256"
-#: The key of a stored cell that names the machine it was trained and measured on.
+#: The key of a stored cell that names the machine that measured it (normally the one that trained
+#: its checkpoint too: runs live on that machine's disk, and a run trained again elsewhere has
+#: other weights, which :func:`check_same_weights` refuses).
 MACHINE_KEY = "machine"
 CPUINFO = Path("/proc/cpuinfo")
 
