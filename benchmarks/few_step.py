@@ -50,6 +50,8 @@ FEW_STEP = (
     "shortcut",
     "shortcut_concentrated",
     "shortcut_guided",
+    "guided_sigma_0.05",
+    "guided_kappa_0.25",
     "solver_midpoint",
 )
 #: The ``default`` runs sampled on the exponential time grid, as a row of the tables.

@@ -47,7 +47,8 @@ class Setting:
     """One configuration: ``policy`` type and its ``overrides`` (``lerobot-train`` flags, after
     :data:`COMMON` and the size preset, so they win). A sampling-only setting names the setting
     whose runs it evaluates (``trained_as``; its own ``overrides`` are then empty) and adds
-    ``sampling`` flags to the evaluation sweep: it costs no training."""
+    ``sampling`` flags to the evaluation sweep: it costs no training. A setting with both
+    ``overrides`` and ``sampling`` trains its own runs and evaluates them with those flags."""
 
     policy: str
     overrides: tuple[str, ...] = ()
@@ -55,6 +56,10 @@ class Setting:
     trained_as: str | None = None
     sampling: tuple[str, ...] = ()
 
+
+#: The evaluation flag of the package's default sampler: each chunk after the first guided toward
+#: the previous chunk's remaining actions.
+GUIDED = ("--guide_to_previous_chunk=true",)
 
 #: Ablations of ActionFlow (issue #17, part 1). The time grid and K need no retraining: they
 #: are evaluation axes of the ``default`` runs (``--time-spacings``, ``--inference-steps``).
@@ -109,7 +114,7 @@ ABLATIONS: dict[str, Setting] = {
         (),
         "the noise_concentrated runs, each chunk guided toward the previous one (the package default)",
         trained_as="noise_concentrated",
-        sampling=("--guide_to_previous_chunk=true",),
+        sampling=GUIDED,
     ),
     "shortcut": Setting(
         "actionflow",
@@ -126,7 +131,7 @@ ABLATIONS: dict[str, Setting] = {
         (),
         "the shortcut_concentrated runs, each chunk guided toward the previous one",
         trained_as="shortcut_concentrated",
-        sampling=("--guide_to_previous_chunk=true",),
+        sampling=GUIDED,
     ),
     "time_beta_noise": Setting(
         "actionflow",
@@ -138,6 +143,20 @@ ABLATIONS: dict[str, Setting] = {
     ),
     "noise_sigma_0.2": Setting(
         "actionflow", ("--policy.noise_sigma=0.2",), "initial positions EEF + N(0, 0.2^2 I)"
+    ),
+    # A tighter prior around the EEF than the package default (sigma 0.1 m, kappa 0.5 rad), on
+    # top of it and sampled like it: does a narrower start straighten the flow further?
+    "guided_sigma_0.05": Setting(
+        "actionflow",
+        ("--policy.noise_rotation=concentrated", "--policy.noise_sigma=0.05"),
+        "the package default (guided) with initial positions EEF + N(0, 0.05^2 I)",
+        sampling=GUIDED,
+    ),
+    "guided_kappa_0.25": Setting(
+        "actionflow",
+        ("--policy.noise_rotation=concentrated", "--policy.noise_kappa=0.25"),
+        "the package default (guided) with initial rotations Exp(0.25 eps) around the EEF's",
+        sampling=GUIDED,
     ),
 }
 
