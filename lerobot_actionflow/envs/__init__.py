@@ -8,7 +8,8 @@ Modules: ``tasks`` (registry), ``robomimic_tasks`` / ``mimicgen_tasks`` / ``mug_
 task table), ``pose_env`` (the Gymnasium env), ``controller`` (absolute OSC_POSE),
 ``scene_transform`` (its parameters) and ``scene_mover`` (applying it to a scene), ``arm_ik``
 (inverse kinematics of the arm), ``rendering`` (offscreen camera images), ``point_cloud`` and
-``point_cloud_config`` (the fused depth-camera point cloud and its settings), ``registration``,
+``point_cloud_config`` (the fused depth-camera point cloud and its settings), ``progress`` (an
+episode's sub-goals reached and closest approach to a joint limit), ``registration``,
 ``configuration``; robosuite environments written here: ``tabletop`` (their base),
 ``stack_three``, ``threading_task``, ``three_piece_assembly``, ``coffee``, ``mug_hang``
 (``materials``: shared helpers). Keys and shapes come from :mod:`lerobot_actionflow.schema`,

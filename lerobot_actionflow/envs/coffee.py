@@ -217,5 +217,17 @@ class Coffee(TabletopTask):
             and abs(pod[2] - (holder[2] + POD_HALF_HEIGHT)) < POD_Z_TOLERANCE
         )
 
+    def lid_closed(self) -> bool:
+        return self.lid_angle < LID_CLOSED_BELOW
+
     def _check_success(self) -> bool:
-        return self.lid_angle < LID_CLOSED_BELOW and self.pod_in_holder()
+        return self.lid_closed() and self.pod_in_holder()
+
+
+def subgoals(env: Coffee) -> dict[str, bool]:
+    """Pod grasped, pod in the holder, lid closed (the last two at once: success)."""
+    return {
+        "pod_grasped": env.grasped("pod"),
+        "pod_in_holder": env.pod_in_holder(),
+        "lid_closed": env.lid_closed(),
+    }

@@ -25,6 +25,7 @@ STACK_THREE = {
         TaskSpec(
             name=f"StackThree_{variant}",
             env_class="lerobot_actionflow.envs.stack_three:StackThree",
+            subgoals="lerobot_actionflow.envs.stack_three:subgoals",
             env_kwargs={"variant": variant},
             entities=STACK_THREE_ENTITIES,
             episode_length=400,
@@ -42,6 +43,7 @@ THREADING = {
         TaskSpec(
             name=f"Threading_{variant}",
             env_class="lerobot_actionflow.envs.threading_task:Threading",
+            subgoals="lerobot_actionflow.envs.threading_task:subgoals",
             env_kwargs={"variant": variant},
             entities=(
                 Entity("needle", body="needle_root", doc="the needle (origin mid-length, tip along +x)"),
@@ -61,6 +63,7 @@ THREE_PIECE_ASSEMBLY = {
         TaskSpec(
             name=f"ThreePieceAssembly_{variant}",
             env_class="lerobot_actionflow.envs.three_piece_assembly:ThreePieceAssembly",
+            subgoals="lerobot_actionflow.envs.three_piece_assembly:subgoals",
             env_kwargs={"variant": variant},
             entities=(
                 Entity("base", body="assembly_base_root", doc="the base with a square socket"),
@@ -82,6 +85,7 @@ COFFEE = {
         TaskSpec(
             name=f"Coffee_{variant}",
             env_class="lerobot_actionflow.envs.coffee:Coffee",
+            subgoals="lerobot_actionflow.envs.coffee:subgoals",
             env_kwargs={"variant": variant},
             entities=(
                 Entity("pod", body="pod_main", doc="the coffee pod (a cylinder)"),

@@ -265,3 +265,13 @@ class MugHang(TabletopTask):
 
     def _check_success(self) -> bool:
         return self.settled_steps >= SETTLED_STEPS and self.hanging()
+
+
+def subgoals(env: MugHang) -> dict[str, bool]:
+    """Mug grasped, handle on the peg, hanging released, hanging still (success)."""
+    return {
+        "mug_grasped": env.grasped("mug"),
+        "handle_on_peg": env.peg_through_handle(),
+        "hanging": env.hanging(),
+        "settled": env._check_success(),
+    }

@@ -18,6 +18,7 @@ MUG_HANG = {
         TaskSpec(
             name=f"MugHang_{variant}",
             env_class="lerobot_actionflow.envs.mug_hang:MugHang",
+            subgoals="lerobot_actionflow.envs.mug_hang:subgoals",
             env_kwargs={"variant": variant},
             entities=(
                 Entity("mug", body="mug_root", doc="the mug (centre of its body; handle along +x)"),

@@ -209,6 +209,12 @@ class PoseTokenEnv(gym.Env):
         self._gripper_qpos = np.asarray(robot._ref_gripper_joint_pos_indexes["right"], dtype=np.int64)
         if self._gripper_qpos.shape != (GRIPPER_QPOS_DIM,):
             raise RuntimeError(f"expected {GRIPPER_QPOS_DIM} gripper joints, got {self._gripper_qpos.shape}")
+        # The arm's joints with a range: qpos addresses and (low, high) per joint.
+        arm_joints = np.asarray(robot._ref_joint_indexes, dtype=np.int64)
+        limited = self._model.jnt_limited[arm_joints].astype(bool)
+        self._arm_qpos = np.asarray(robot._ref_joint_pos_indexes, dtype=np.int64)[limited]
+        self._arm_range = self._model.jnt_range[arm_joints[limited]].copy()
+        self._subgoals = self.spec_task.resolve_subgoals()
         # Token rows grouped by the kind of MuJoCo element they read (vectorised reads).
         rows: dict[str, list[tuple[int, int]]] = {k: [] for k in _OBJ_TYPES}
         self._virtual = []
@@ -351,6 +357,18 @@ class PoseTokenEnv(gym.Env):
     def is_success(self) -> bool:
         """The task's success check on the current simulator state."""
         return bool(self._env._check_success())
+
+    def subgoals(self) -> dict[str, bool]:
+        """The task's sub-goals in the current state (:attr:`TaskSpec.subgoals`), in task order;
+        ``{}`` for a task without."""
+        return {} if self._subgoals is None else {k: bool(v) for k, v in self._subgoals(self._env).items()}
+
+    def joint_limit_margin(self) -> float:
+        """The smallest distance of any arm joint to its nearest range limit now, in radians
+        (``inf`` for an arm without limited joints)."""
+        q = self._data.qpos[self._arm_qpos]
+        margins = np.minimum(q - self._arm_range[:, 0], self._arm_range[:, 1] - q)
+        return float(margins.min()) if margins.size else math.inf
 
     def get_observation(self) -> dict[str, Any]:
         """The observation of the current simulator state (e.g. after editing it)."""

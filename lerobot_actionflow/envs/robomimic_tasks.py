@@ -21,6 +21,46 @@ import numpy as np
 from lerobot_actionflow.envs.tasks import Entity, TaskSpec, register_task
 
 
+def _holds(env, obj) -> bool:
+    """robosuite's grasp check: both fingers' pads touch ``obj`` (a MujocoObject or its geoms)."""
+    return bool(env._check_grasp(gripper=env.robots[0].gripper, object_geoms=obj))
+
+
+def lift_subgoals(env) -> dict[str, bool]:
+    """Cube grasped, cube lifted (success)."""
+    return {"cube_grasped": _holds(env, env.cube), "cube_lifted": bool(env._check_success())}
+
+
+def can_subgoals(env) -> dict[str, bool]:
+    """Can grasped, can over its cell of the target bin, released there (success)."""
+    can = env.objects[env.object_id]
+    pos = env.sim.data.body_xpos[env.obj_body_id[can.name]]
+    return {
+        "can_grasped": _holds(env, can),
+        "can_in_cell": not env.not_in_bin(pos, env.object_id),
+        "released": bool(env._check_success()),
+    }
+
+
+def square_subgoals(env) -> dict[str, bool]:
+    """Nut grasped, nut around the peg, released there (success)."""
+    nut = env.nuts[env.nut_id]
+    pos = env.sim.data.body_xpos[env.obj_body_id[nut.name]]
+    return {
+        "nut_grasped": _holds(env, nut),
+        "nut_on_peg": bool(env.on_peg(pos, env.nut_id)),
+        "released": bool(env._check_success()),
+    }
+
+
+def tool_hang_subgoals(env) -> dict[str, bool]:
+    """Frame inserted in the stand, tool hung on the frame (both at once: success)."""
+    return {
+        "frame_assembled": bool(env._check_frame_assembled()),
+        "tool_on_frame": bool(env._check_tool_on_frame()),
+    }
+
+
 def can_goal_pose(env) -> tuple[np.ndarray, np.ndarray]:
     """Centre of the can's cell in bin 2 (at the bin floor height), identity orientation."""
     pos = np.asarray(env.target_bin_placements[env.object_id], dtype=np.float64)
@@ -31,6 +71,7 @@ LIFT = register_task(
     TaskSpec(
         name="Lift",
         env_class="robosuite.environments.manipulation.lift:Lift",
+        subgoals="lerobot_actionflow.envs.robomimic_tasks:lift_subgoals",
         entities=(Entity("cube", body="cube_main", doc="the red cube, half size 0.02 m"),),
         episode_length=400,
         description="Lift the red cube off the table.",
@@ -42,6 +83,7 @@ CAN = register_task(
     TaskSpec(
         name="Can",
         env_class="robosuite.environments.manipulation.pick_place:PickPlaceCan",
+        subgoals="lerobot_actionflow.envs.robomimic_tasks:can_subgoals",
         entities=(
             Entity("can", body="Can_main", doc="the can"),
             Entity(
@@ -73,6 +115,7 @@ SQUARE = register_task(
     TaskSpec(
         name="Square",
         env_class="robosuite.environments.manipulation.nut_assembly:NutAssemblySquare",
+        subgoals="lerobot_actionflow.envs.robomimic_tasks:square_subgoals",
         entities=(
             Entity("nut", body="SquareNut_main", doc="the square nut"),
             Entity("peg", body="peg1", doc="the square peg (fixed to the table)"),
@@ -89,6 +132,7 @@ TOOL_HANG = register_task(
     TaskSpec(
         name="ToolHang",
         env_class="robosuite.environments.manipulation.tool_hang:ToolHang",
+        subgoals="lerobot_actionflow.envs.robomimic_tasks:tool_hang_subgoals",
         entities=(
             # The same reference points as robosuite's own ToolHang observations.
             Entity("stand", geom="stand_base", doc="the stand's base plate"),

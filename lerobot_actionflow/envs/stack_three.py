@@ -77,3 +77,13 @@ class StackThree(TabletopTask):
 
     def _check_success(self) -> bool:
         return self._on("cubeA", "cubeB") and self._on("cubeC", "cubeA")
+
+
+def subgoals(env: StackThree) -> dict[str, bool]:
+    """Cube A grasped, A on B, cube C grasped, C on A (with A on B: success)."""
+    return {
+        "cubeA_grasped": env.grasped("cubeA"),
+        "cubeA_on_cubeB": env._on("cubeA", "cubeB"),
+        "cubeC_grasped": env.grasped("cubeC"),
+        "cubeC_on_cubeA": env._on("cubeC", "cubeA"),
+    }

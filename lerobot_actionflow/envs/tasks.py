@@ -50,8 +50,7 @@ class Entity:
         return next(k for k in ("body", "site", "geom", "pose_fn") if getattr(self, k) is not None)
 
     def resolve_pose_fn(self) -> Callable[[Any], tuple[Any, Any]]:
-        module, _, func = str(self.pose_fn).partition(":")
-        return getattr(importlib.import_module(module), func)
+        return _import(str(self.pose_fn))
 
 
 @dataclass(frozen=True)
@@ -80,6 +79,10 @@ class TaskSpec:
             (:mod:`lerobot_actionflow.envs.point_cloud`).
         point_cloud_removed: bodies whose subtrees are removed from point clouds, besides the
             robot: the arena's support surfaces (the table; Can's bins) and visual-only markers.
+        subgoals: ``"module:function"``, called with the robosuite env, returning the task's
+            sub-goals as ``{name: bool}`` in the order an expert reaches them (the last one is
+            the success check or part of it); what an evaluation reads to say where failed
+            episodes stop (:mod:`lerobot_actionflow.envs.progress`). ``None``: none defined.
     """
 
     name: str
@@ -97,6 +100,7 @@ class TaskSpec:
     variant: str = ""
     point_cloud_cameras: tuple[str, ...] = ("agentview", "sideview")
     point_cloud_removed: tuple[str, ...] = ("table",)
+    subgoals: str | None = None
 
     @property
     def num_tokens(self) -> int:
@@ -108,8 +112,17 @@ class TaskSpec:
         return f"lerobot_actionflow/{self.name}-v0"
 
     def load_env_class(self) -> type:
-        module, _, cls = self.env_class.partition(":")
-        return getattr(importlib.import_module(module), cls)
+        return _import(self.env_class)
+
+    def resolve_subgoals(self) -> Callable[[Any], dict[str, bool]] | None:
+        """The :attr:`subgoals` function, or None."""
+        return None if self.subgoals is None else _import(self.subgoals)
+
+
+def _import(path: str) -> Any:
+    """The attribute named by ``"module:attribute"``."""
+    module, _, name = path.partition(":")
+    return getattr(importlib.import_module(module), name)
 
 
 TASKS: dict[str, TaskSpec] = {}

@@ -160,3 +160,8 @@ class Threading(TabletopTask):
 
     def _check_success(self) -> bool:
         return self.tip_to_ring_distance() < RING_INNER_RADIUS
+
+
+def subgoals(env: Threading) -> dict[str, bool]:
+    """Needle grasped, needle threaded (success)."""
+    return {"needle_grasped": env.grasped("needle"), "threaded": env._check_success()}

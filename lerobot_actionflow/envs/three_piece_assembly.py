@@ -143,3 +143,13 @@ class ThreePieceAssembly(TabletopTask):
         return self._inserted("piece1", "base", PIECE1_OVER_BASE) and self._inserted(
             "piece2", "piece1", PIECE2_OVER_PIECE1
         )
+
+
+def subgoals(env: ThreePieceAssembly) -> dict[str, bool]:
+    """Piece 1 grasped, inserted into the base, piece 2 grasped, inserted into piece 1."""
+    return {
+        "piece1_grasped": env.grasped("piece1"),
+        "piece1_inserted": env._inserted("piece1", "base", PIECE1_OVER_BASE),
+        "piece2_grasped": env.grasped("piece2"),
+        "piece2_inserted": env._inserted("piece2", "piece1", PIECE2_OVER_PIECE1),
+    }

@@ -45,6 +45,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from lerobot_actionflow.envs.progress import NEAR_JOINT_LIMIT_RAD
 from lerobot_actionflow.policies.execution import execution_window, num_skipped
 from lerobot_actionflow.schema import ACTION_KEY
 
@@ -245,14 +246,20 @@ def postprocess_actions(postprocessor, env_postprocessor) -> Callable[[Tensor], 
     return to_env_action
 
 
-def summarize(records: list[dict[str, Any]]) -> dict[str, float]:
+def summarize(records: list[dict[str, Any]]) -> dict[str, Any]:
     """Success rate and smoothness over episode records (:class:`LatencyHoldWrapper`): the mean
-    and the largest of the per-episode largest jumps, the mean jerk, mean held steps per chunk."""
+    and the largest of the per-episode largest jumps, the mean jerk, mean held steps per chunk;
+    and, where the records hold the episodes' progress, :func:`summarize_progress`."""
     if not records:
         return {"n_episodes": 0, "pc_success": float("nan")}
-    col = {k: np.array([r[k] for r in records], dtype=np.float64) for k in records[0] if k != "seed"}
+    col = {
+        k: np.array([r[k] for r in records], dtype=np.float64)
+        for k in records[0]
+        if k not in ("seed", "subgoals_reached")
+    }
     chunks = max(col["chunks"].sum(), 1.0)
     return {
+        **summarize_progress(records),
         "n_episodes": len(records),
         "pc_success": 100.0 * float(col["success"].mean()),
         "mean_max_position_jump_m": float(col["max_position_jump_m"].mean()),
@@ -262,6 +269,28 @@ def summarize(records: list[dict[str, Any]]) -> dict[str, float]:
         "mean_jerk_m2": float(col["jerk_m2"].mean()),
         "mean_control_steps": float(col["control_steps"].mean()),
         "held_steps_per_chunk": float(col["held_steps"].sum() / chunks),
+    }
+
+
+def summarize_progress(records: list[dict[str, Any]]) -> dict[str, Any]:
+    """Where the episodes got to (:mod:`lerobot_actionflow.envs.progress`): ``pc_subgoals``,
+    ``{name: % of episodes that reached it}`` in task order; ``pc_near_joint_limit``, the % of
+    episodes in which an arm joint came within :data:`NEAR_JOINT_LIMIT_RAD` of its limit, over
+    all episodes and over the failed ones (``pc_near_joint_limit_failed``, NaN without failures);
+    the mean of the episodes' smallest joint margins (``mean_min_joint_margin_rad``). ``{}`` for
+    records without progress."""
+    if not records or "min_joint_margin_rad" not in records[0]:
+        return {}
+    names = list(records[0]["subgoals_reached"])
+    reached = {n: np.array([r["subgoals_reached"][n] for r in records], dtype=bool) for n in names}
+    margin = np.array([r["min_joint_margin_rad"] for r in records], dtype=np.float64)
+    near = margin < NEAR_JOINT_LIMIT_RAD
+    failed = ~np.array([r["success"] for r in records], dtype=bool)
+    return {
+        "pc_subgoals": {n: 100.0 * float(hits.mean()) for n, hits in reached.items()},
+        "pc_near_joint_limit": 100.0 * float(near.mean()),
+        "pc_near_joint_limit_failed": 100.0 * float(near[failed].mean()) if failed.any() else float("nan"),
+        "mean_min_joint_margin_rad": float(margin.mean()),
     }
 
 

@@ -14,7 +14,9 @@ An episode that ends during the held steps ends there (the new action is never a
 ``step`` then covers ``k + 1`` control steps; its reward is their sum and its info the last one's.
 
 Every commanded target of an episode is recorded; at the episode's end its smoothness figures
-(:mod:`lerobot_actionflow.evaluation.smoothness`) join :attr:`episode_records`, read and cleared
+(:mod:`lerobot_actionflow.evaluation.smoothness`) and its progress (sub-goals reached, closest
+approach to a joint limit: :mod:`lerobot_actionflow.envs.progress`, whose wrapper
+:func:`make_latency_envs` puts inside this one) join :attr:`episode_records`, read and cleared
 with :meth:`pop_episode_records`. After the end of an episode the env is frozen like LeRobot's
 ``FreezeAfterEpisodeEnd``: Gymnasium's argument-less autoreset and further steps replay the
 terminal transition, so that only episodes started by a rollout (``reset`` with LeRobot's
@@ -29,6 +31,7 @@ import gymnasium as gym
 import numpy as np
 from lerobot.envs.utils import NEW_ROLLOUT_OPTION
 
+from lerobot_actionflow.envs.progress import PROGRESS_INFO_KEY, EpisodeProgress
 from lerobot_actionflow.evaluation.smoothness import smoothness_figures
 from lerobot_actionflow.schema import ACTION_DIM, ACTION_GRIPPER_INDEX, ENV_AGENT_POS, POSE9_DIM
 
@@ -52,8 +55,10 @@ class LatencyHoldWrapper(gym.Wrapper):
         pending_hold: ``None``, an int ``k >= 0`` or targets ``(k, ACTION_DIM)``, consumed by the
             next ``step``.
         episode_records: one dict per finished episode: ``seed``, ``success``, ``control_steps``,
-            ``held_steps``, ``chunks`` and the figures of
-            :func:`~lerobot_actionflow.evaluation.smoothness.smoothness_figures`.
+            ``held_steps``, ``chunks``, the figures of
+            :func:`~lerobot_actionflow.evaluation.smoothness.smoothness_figures` and, when the
+            wrapped env reports it, the episode's progress (``subgoals_reached``,
+            ``min_joint_margin_rad``).
     """
 
     def __init__(self, env: gym.Env):
@@ -67,6 +72,7 @@ class LatencyHoldWrapper(gym.Wrapper):
         self._held = 0
         self._chunks = 0
         self._success = False
+        self._progress: dict[str, Any] = {}
         self._recording = False
 
     # -- gym API ----------------------------------------------------------------------------------
@@ -82,6 +88,7 @@ class LatencyHoldWrapper(gym.Wrapper):
         self.pending_hold = None
         self._targets, self._last_target = [], idle_target(obs)
         self._seed, self._held, self._chunks, self._success = seed, 0, 0, bool(info.get("is_success"))
+        self._progress = info.get(PROGRESS_INFO_KEY, {})
         self._recording = True
         return obs, info
 
@@ -130,6 +137,7 @@ class LatencyHoldWrapper(gym.Wrapper):
         self._targets.append(target)
         self._last_target = target
         self._success = self._success or bool(out[4].get("is_success"))
+        self._progress = out[4].get(PROGRESS_INFO_KEY, self._progress)
         return out
 
     def _end(self, obs, reward, terminated, truncated, info):
@@ -147,13 +155,15 @@ class LatencyHoldWrapper(gym.Wrapper):
                 "held_steps": self._held,
                 "chunks": self._chunks,
                 **smoothness_figures(targets),
+                **self._progress,
             }
         )
         self._recording = False
 
 
 def _make_wrapped(gym_id: str, disable_env_checker: bool, gym_kwargs: dict) -> gym.Env:
-    return LatencyHoldWrapper(gym.make(gym_id, disable_env_checker=disable_env_checker, **gym_kwargs))
+    env = gym.make(gym_id, disable_env_checker=disable_env_checker, **gym_kwargs)
+    return LatencyHoldWrapper(EpisodeProgress(env))
 
 
 def make_latency_envs(env_cfg, n_envs: int = 1, use_async_envs: bool = False) -> gym.vector.VectorEnv:

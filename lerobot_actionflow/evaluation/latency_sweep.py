@@ -57,6 +57,7 @@ from lerobot.configs.default import EvalConfig
 from lerobot.envs.configs import EnvConfig
 
 from lerobot_actionflow.data.staging import exclusive_lock, write_json_atomic
+from lerobot_actionflow.envs.progress import NEAR_JOINT_LIMIT_RAD
 from lerobot_actionflow.evaluation.latency import MODES, Scheme
 from lerobot_actionflow.evaluation.provenance import DIGEST_KEY, check_same_weights, weights_digest
 from lerobot_actionflow.evaluation.real_latency import at_real_latency, format_real_latency, load_real_latency
@@ -229,7 +230,8 @@ def _success_cell(row: dict | None) -> str:
 
 def format_tables(rows: list[dict]) -> str:
     """Markdown: success % per series (checkpoint, policy, K/IS, mode) and latency; then the
-    smoothness of every cell (largest jumps, jerk)."""
+    smoothness of every cell (largest jumps, jerk); then, for cells with it, how far the episodes
+    got (:func:`~lerobot_actionflow.evaluation.latency.summarize_progress`)."""
     done = [r for r in rows if "skipped" not in r]
     latencies = sorted({r["latency_ms"] for r in done}, key=lambda x: (isinstance(x, str), x))
     series: dict[str, dict] = {}
@@ -260,10 +262,36 @@ def format_tables(rows: list[dict]) -> str:
             f"{1e3 * r['mean_max_position_jump_m']:.1f} | "
             f"{math.degrees(r['mean_max_rotation_jump_rad']):.1f} | {1e6 * r['mean_jerk_m2']:.2f} |"
         )
+    lines += _progress_table(done)
     skipped = [r for r in rows if "skipped" in r]
     if skipped:
         lines += ["", "Skipped: " + "; ".join(f"{_series(r)}: {r['skipped']}" for r in skipped)]
     return "\n".join(lines)
+
+
+def _progress_table(done: list[dict]) -> list[str]:
+    with_progress = [r for r in done if r.get("pc_subgoals") is not None]
+    if not with_progress:
+        return []
+    names = list(with_progress[0]["pc_subgoals"])
+    lines = [
+        "",
+        "Progress: % of episodes that reached each sub-goal (at any step, in task order); % of "
+        f"episodes with an arm joint within {NEAR_JOINT_LIMIT_RAD} rad of its limit, of all and of the "
+        "failed ones; the mean of the episodes' smallest joint margins",
+        "",
+        "| series | latency | success | " + " | ".join(names) + " | near limit | near limit, failed | "
+        "min margin (deg) |",
+        "| --- | ---: | ---: |" + " ---: |" * (len(names) + 3),
+    ]
+    for r in with_progress:
+        lat = r["latency_ms"] if isinstance(r["latency_ms"], str) else f"{r['latency_ms']:g} ms"
+        reached = " | ".join(f"{r['pc_subgoals'].get(n, float('nan')):.0f}" for n in names)
+        lines.append(
+            f"| {_series(r)} | {lat} | {r['pc_success']:.0f} | {reached} | {r['pc_near_joint_limit']:.0f} | "
+            f"{r['pc_near_joint_limit_failed']:.0f} | {math.degrees(r['mean_min_joint_margin_rad']):.1f} |"
+        )
+    return lines
 
 
 #: Line style of each execution mode in the plot; the colour tells the checkpoint and K/IS.

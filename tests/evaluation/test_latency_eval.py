@@ -76,8 +76,15 @@ def test_latency_sweep_writes_every_cell(checkpoint, tmp_path):
         assert row["mean_hold_steps"] == (0 if row["latency_ms"] == 0 else 2)
         figures = [row["max_position_jump_m"], row["max_rotation_jump_rad"], row["mean_jerk_m2"]]
         assert np.isfinite(figures).all()
+        # how far the episode got: Lift's sub-goals, in task order, and the arm's joint margin
+        episode = row["episodes"][0]
+        assert list(episode["subgoals_reached"]) == ["cube_grasped", "cube_lifted"]
+        assert list(row["pc_subgoals"]) == list(episode["subgoals_reached"])
+        assert np.isfinite(episode["min_joint_margin_rad"])
+        assert row["mean_min_joint_margin_rad"] == episode["min_joint_margin_rad"]
     table = (tmp_path / "latency_results.md").read_text()
     assert "100 ms" in table and "scheme" in table and "rtc" in table
+    assert "| cube_grasped | cube_lifted |" in table
     pytest.importorskip("matplotlib")
     assert (tmp_path / "latency_success.png").stat().st_size > 0
 

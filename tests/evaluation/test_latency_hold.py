@@ -14,7 +14,14 @@ import pytest
 import torch
 from gymnasium.vector import AutoresetMode
 
-from lerobot_actionflow.evaluation.latency import ChunkLatency, Scheme, configure_execution, hold_steps
+from lerobot_actionflow.envs.progress import PROGRESS_INFO_KEY
+from lerobot_actionflow.evaluation.latency import (
+    ChunkLatency,
+    Scheme,
+    configure_execution,
+    hold_steps,
+    summarize,
+)
 from lerobot_actionflow.evaluation.latency_hold import LatencyHoldWrapper
 from lerobot_actionflow.policies.execution import ExecutionOptions, execution_window
 from lerobot_actionflow.schema import ACTION_DIM, ACTION_KEY, ENV_AGENT_POS, STATE_DIM
@@ -230,3 +237,45 @@ def test_a_measured_latency_holds_the_steps_the_inference_took():
     xs, _, hook = run(SlowPolicy(0.3, horizon=4, n_action_steps=2), None, 0.25, 6)
     assert set(hook.holds) == {2}
     assert xs == [I, I, 0, 1, 1, 1]
+
+
+class ProgressEnv(RecordingEnv):
+    """A RecordingEnv whose info carries a progress record (as EpisodeProgress adds it): sub-goal
+    "moved" reached from the second step on, the joint margin falling by 0.1 rad a step."""
+
+    def _progress(self):
+        return {"subgoals_reached": {"moved": self.t >= 2}, "min_joint_margin_rad": 1.0 - 0.1 * self.t}
+
+    def reset(self, *, seed=None, options=None):
+        obs, info = super().reset(seed=seed, options=options)
+        return obs, {**info, PROGRESS_INFO_KEY: self._progress()}
+
+    def step(self, action):
+        out = super().step(action)
+        return *out[:4], {**out[4], PROGRESS_INFO_KEY: self._progress()}
+
+
+def test_an_episode_record_holds_its_last_progress_and_the_summary_counts_it():
+    records = []
+    for length in (1, 3):
+        env = LatencyHoldWrapper(ProgressEnv(length))
+        env.reset(seed=length)
+        env.pending_hold = 1 if length == 3 else None  # a held step is a control step too
+        for _ in range(length):
+            if env.step(_action(0.0).numpy())[3]:
+                break
+        records += env.pop_episode_records()
+    assert [r["subgoals_reached"] for r in records] == [{"moved": False}, {"moved": True}]
+    assert [r["min_joint_margin_rad"] for r in records] == pytest.approx([0.9, 0.7])
+    summary = summarize(records)
+    assert summary["pc_subgoals"] == {"moved": 50.0}
+    assert summary["pc_near_joint_limit"] == 0.0
+    assert summary["mean_min_joint_margin_rad"] == pytest.approx(0.8)
+    records[1]["min_joint_margin_rad"] = 0.05  # within robosuite's 0.1 rad tolerance
+    records[1]["success"] = True
+    summary = summarize(records)
+    assert summary["pc_near_joint_limit"] == 50.0 and summary["pc_near_joint_limit_failed"] == 0.0
+    # records without progress (an env without the wrapper) summarise as before
+    progress = ("subgoals_reached", "min_joint_margin_rad")
+    bare = [{k: v for k, v in r.items() if k not in progress} for r in records]
+    assert "pc_subgoals" not in summarize(bare) and summarize(bare)["pc_success"] == 50.0
