@@ -30,11 +30,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from study import (
     ABLATIONS,
     COMPARISON,
+    GUIDED,
     STUDY_CAPS,
     format_summary,
     protocol_mismatch,
     study_cells,
     summarise,
+    task_files,
     with_cap,
 )
 
@@ -64,13 +66,19 @@ FEW_IS, FULL_IS, TARGET_GAP_POINTS = 2, 10, 5.0
 RESULTS = Path(__file__).resolve().parent / "results"
 
 
-def collect(task: str, results: Path) -> dict:
+def collect(task: str, results: Path, candidates_file: Path | None = None) -> dict:
     """``{"cells", "summary", "targets"}`` of the few-step candidates, the exponential-grid row
-    and the references on ``task`` (its own evaluation task)."""
+    and the references on ``task`` (its own evaluation task). The references come from the task's
+    file in ``results``; the candidates and the grid row too, or from ``candidates_file``."""
     path = results / f"{task}.json"
     stored = with_cap(json.loads(path.read_text())["cells"], STUDY_CAPS.get(task))
-    candidates = [c for c in study_cells(stored, "ablation", task) if c["setting"] in FEW_STEP]
-    on_grid = study_cells(stored, "ablation", task, "exponential")
+    if candidates_file is not None:
+        path = candidates_file
+        own = with_cap(json.loads(path.read_text())["cells"], STUDY_CAPS.get(task))
+    else:
+        own = stored
+    candidates = [c for c in study_cells(own, "ablation", task) if c["setting"] in FEW_STEP]
+    on_grid = study_cells(own, "ablation", task, "exponential")
     exponential = [c for c in on_grid if c["setting"] == "default"]
     references = [c for c in study_cells(stored, "comparison", task) if c["setting"] in REFERENCES]
     if not candidates + exponential + references:
@@ -159,12 +167,12 @@ def format_targets(checks: list[dict]) -> str:
 
 
 def latency_name(setting: str) -> str:
-    """The name of ``setting``'s cells in a latency report: a sampling-only setting that guides
-    each chunk toward the previous one is timed as its runs' guided chunks
-    (``bench_checkpoint_latency.py --guided <trained_as>``: ``<trained_as>+guided``)."""
+    """The name of ``setting``'s cells in a latency report: a setting that guides each chunk
+    toward the previous one is timed as its runs' guided chunks (``bench_checkpoint_latency.py
+    --guided <runs>``: ``<runs>+guided``, the runs being ``trained_as`` or the setting's own)."""
     spec = ABLATIONS.get(setting)
-    if spec is not None and spec.trained_as and "--guide_to_previous_chunk=true" in spec.sampling:
-        return f"{spec.trained_as}+guided"
+    if spec is not None and set(GUIDED) <= set(spec.sampling):
+        return f"{spec.trained_as or setting}+guided"
     return setting
 
 
@@ -201,7 +209,19 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--results", type=Path, default=RESULTS, help="folder of the <task>.json study files")
     ap.add_argument("--latency", type=Path, nargs="*", default=[], help="bench_checkpoint_latency.py reports")
     ap.add_argument("--output", type=Path, default=None, help="default: <results>/few_step.json")
+    ap.add_argument(
+        "--candidates-results",
+        nargs="+",
+        default=[],
+        metavar="TASK=FILE",
+        help="read TASK's candidate cells from FILE (e.g. runs trained again on another machine); "
+        "the references' cells still come from the task's own file",
+    )
     args = ap.parse_args(argv)
+    try:
+        candidate_files = task_files(args.candidates_results, "--candidates-results")
+    except ValueError as e:
+        ap.error(str(e))
     latency = {}
     for path in args.latency:
         report = json.loads(path.read_text())
@@ -219,7 +239,7 @@ def main(argv: list[str] | None = None) -> dict:
             raise SystemExit(
                 f"no study results for task {task!r}: {args.results / f'{task}.json'} is missing"
             )
-        out["tasks"][task] = collect(task, args.results)
+        out["tasks"][task] = collect(task, args.results, candidate_files.get(task))
         print(format_task(task, out["tasks"][task], latency.get(task)) + "\n")
     path = args.output or args.results / "few_step.json"
     path.write_text(json.dumps(out, indent=1) + "\n")

@@ -53,6 +53,7 @@ from study import (
     protocol_of,
     scene_task,
     study_cells,
+    task_files,
     with_cap,
 )
 
@@ -447,12 +448,10 @@ def main(argv: list[str] | None = None) -> dict:
     args = ap.parse_args(argv)
     if args.actionflow is not None and args.actionflow.count("/") != 1:
         ap.error(f"--actionflow takes STUDY/SETTING, e.g. ablation/guided; got {args.actionflow!r}")
-    af_files = {}
-    for item in args.actionflow_results:
-        task, sep, file = item.partition("=")
-        if not sep or not task or not file:
-            ap.error(f"--actionflow-results takes TASK=FILE; got {item!r}")
-        af_files[task] = Path(file)
+    try:
+        af_files = task_files(args.actionflow_results, "--actionflow-results")
+    except ValueError as e:
+        ap.error(str(e))
     report = {"h1": [], "h2": [], "h3": [], "h3_scenes": [], "h4": []}
     for task in [t for t in args.tasks.split(",") if t]:
         cells = _load_cells(args.results / f"{task}.json", task, required=False)

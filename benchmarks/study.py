@@ -258,6 +258,24 @@ def scene_task(task: str, scene: str) -> str:
     return f"{task}+scene_{scene}"
 
 
+def task_files(items: list[str], flag: str) -> dict[str, Path]:
+    """``{task: Path}`` of command-line items ``TASK=FILE`` (a task's cells read from another
+    store: longer runs, or runs trained again on another machine).
+
+    Raises:
+        ValueError: an item that is not ``TASK=FILE``, or a task given twice; it names ``flag``.
+    """
+    files: dict[str, Path] = {}
+    for item in items:
+        task, sep, file = item.partition("=")
+        if not sep or not task or not file:
+            raise ValueError(f"{flag} takes TASK=FILE; got {item!r}")
+        if task in files:
+            raise ValueError(f"{flag}: task {task!r} is given twice")
+        files[task] = Path(file)
+    return files
+
+
 def with_cap(cells: list[dict], episode_length: int | None) -> list[dict]:
     """The cells evaluated with the episode cap ``episode_length`` (None: the task's own)."""
     return [c for c in cells if c.get("episode_length") == episode_length]

@@ -137,3 +137,29 @@ def test_a_guided_setting_reads_its_runs_guided_latency():
                                  "noise_concentrated+guided/IS2": {"median_ms": 20.0}}}  # fmt: skip
     assert few_step.latency_row(report, "guided", [2, 10]) == ["20.0", "-"]
     assert few_step.latency_row(report, "noise_concentrated", [2]) == ["13.0"]
+    # a setting that trains its own runs and samples them guided: timed as its own guided chunks
+    report["latency_batch1"]["guided_sigma_0.05+guided/IS2"] = {"median_ms": 21.0}
+    assert few_step.latency_row(report, "guided_sigma_0.05", [2]) == ["21.0"]
+
+
+def test_candidates_from_another_store_are_held_against_the_tasks_own_references(tmp_path):
+    own = [_cell("guided", 0, 2, 40.0), _cell("guided", 0, 10, 90.0)]  # the task's own runs
+    reference = [_cell("euclidean_flow", 0, 2, 50.0, study="comparison")]
+    (tmp_path / "Lift.json").write_text(json.dumps({"task": "Lift", "cells": own + reference}))
+    retrained = [_cell("guided", 0, 2, 88.0), _cell("guided", 0, 10, 90.0)]
+    other = tmp_path / "Lift_other_machine.json"
+    other.write_text(json.dumps({"task": "Lift", "cells": retrained}))
+    out = few_step.main(
+        ["--tasks", "Lift", "--results", str(tmp_path), "--candidates-results", f"Lift={other}"]
+    )
+    assert out["tasks"]["Lift"]["cells"] == retrained + reference  # not the task file's guided runs
+    (check,) = out["tasks"]["Lift"]["targets"]
+    assert (check["gap"], check["references"]["euclidean_flow"]["at_or_above"]) == (2.0, True)
+    control = few_step.main(["--tasks", "Lift", "--results", str(tmp_path)])
+    assert control["tasks"]["Lift"]["targets"][0]["gap"] == 50.0
+
+
+@pytest.mark.parametrize("item", ["Lift", "=x.json", "Lift="])
+def test_a_store_item_that_is_not_task_equals_file_is_refused(tmp_path, item):
+    with pytest.raises(SystemExit):
+        few_step.main(["--tasks", "Lift", "--results", str(tmp_path), "--candidates-results", item])

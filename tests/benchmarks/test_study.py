@@ -314,3 +314,16 @@ def test_record_once_lets_one_of_two_side_by_side_studies_record(tmp_path):
     # Control: without the dataset, the call does record.
     assert run_results.record_once(tmp_path / "other", lambda: calls.append("other")) is True
     assert calls[-1] == "other"
+
+
+def test_task_files_map_each_task_to_its_store_and_name_the_flag_on_bad_items():
+    from study import task_files
+
+    assert task_files(["Square=results/Square_36k.json", "Lift=b.json"], "--x") == {
+        "Square": Path("results/Square_36k.json"),
+        "Lift": Path("b.json"),
+    }
+    with pytest.raises(ValueError, match="--x takes TASK=FILE; got 'Square'"):
+        task_files(["Square"], "--x")
+    with pytest.raises(ValueError, match="--x: task 'Lift' is given twice"):
+        task_files(["Lift=a.json", "Lift=b.json"], "--x")
