@@ -33,6 +33,7 @@ from study import (
     GUIDED,
     STUDY_CAPS,
     format_summary,
+    load_cells,
     protocol_mismatch,
     study_cells,
     summarise,
@@ -71,16 +72,22 @@ def collect(task: str, results: Path, candidates_file: Path | None = None) -> di
     and the references on ``task`` (its own evaluation task). The references come from the task's
     file in ``results``; the candidates and the grid row too, or from ``candidates_file``."""
     path = results / f"{task}.json"
-    stored = with_cap(json.loads(path.read_text())["cells"], STUDY_CAPS.get(task))
+    stored = with_cap(load_cells(path, task, required=True), STUDY_CAPS.get(task))
     if candidates_file is not None:
         path = candidates_file
-        own = with_cap(json.loads(path.read_text())["cells"], STUDY_CAPS.get(task))
+        own = with_cap(load_cells(path, task, required=True), STUDY_CAPS.get(task))
     else:
         own = stored
     candidates = [c for c in study_cells(own, "ablation", task) if c["setting"] in FEW_STEP]
     on_grid = study_cells(own, "ablation", task, "exponential")
     exponential = [c for c in on_grid if c["setting"] == "default"]
     references = [c for c in study_cells(stored, "comparison", task) if c["setting"] in REFERENCES]
+    if candidates_file is not None and not candidates + exponential:
+        raise SystemExit(
+            f"--candidates-results {task}={candidates_file} has no few-step candidate cells: none of "
+            f"the settings {list(FEW_STEP)} evaluated on {task} with the study's episode cap "
+            f"{STUDY_CAPS.get(task)}"
+        )
     if not candidates + exponential + references:
         raise SystemExit(
             f"{path} has no few-step cells of task {task!r}: none of the settings {list(FEW_STEP)} "
@@ -222,6 +229,9 @@ def main(argv: list[str] | None = None) -> dict:
         candidate_files = task_files(args.candidates_results, "--candidates-results")
     except ValueError as e:
         ap.error(str(e))
+    tasks = [t for t in args.tasks.split(",") if t]
+    if unused := sorted(set(candidate_files) - set(tasks)):
+        ap.error(f"--candidates-results names tasks not in --tasks {tasks}: {unused}")
     latency = {}
     for path in args.latency:
         report = json.loads(path.read_text())
@@ -234,7 +244,7 @@ def main(argv: list[str] | None = None) -> dict:
         "tasks": {},
         "latency": latency,
     }
-    for task in [t for t in args.tasks.split(",") if t]:
+    for task in tasks:
         if not (args.results / f"{task}.json").exists():
             raise SystemExit(
                 f"no study results for task {task!r}: {args.results / f'{task}.json'} is missing"

@@ -38,7 +38,6 @@ the references' from the task's own.
 from __future__ import annotations
 
 import argparse
-import json
 import statistics
 import sys
 from pathlib import Path
@@ -48,6 +47,7 @@ from few_step import FEW_IS, RESULTS
 from study import (
     COMPARISON_ACTIONFLOW_IN_ABLATION,
     STUDY_CAPS,
+    load_cells,
     mean_std,
     protocol_mismatch,
     protocol_of,
@@ -412,19 +412,6 @@ def _grouped_bars(ax, groups: dict[tuple[str, int], dict[str, float]], names) ->
         ax.legend(fontsize=7)
 
 
-def _load_cells(path: Path, task: str, required: bool) -> list[dict]:
-    """The cells of the store ``path`` (written for ``task``); none if it is missing and not
-    ``required``."""
-    if not path.exists():
-        if required:
-            raise SystemExit(f"{path}: no such cell store (given for {task})")
-        return []
-    store = json.loads(path.read_text())
-    if store.get("task") != task:
-        raise SystemExit(f"{path}: a cell store of task {store.get('task')!r}, not {task!r}")
-    return store["cells"]
-
-
 def main(argv: list[str] | None = None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--tasks", default=",".join(TASKS))
@@ -454,16 +441,16 @@ def main(argv: list[str] | None = None) -> dict:
         ap.error(str(e))
     report = {"h1": [], "h2": [], "h3": [], "h3_scenes": [], "h4": []}
     for task in [t for t in args.tasks.split(",") if t]:
-        cells = _load_cells(args.results / f"{task}.json", task, required=False)
+        cells = load_cells(args.results / f"{task}.json", task, required=False)
         if task in af_files:
             refs = [c for c in cells if c["study"] == "comparison" and c["setting"] in REFERENCES.values()]
-            cells = refs + _load_cells(af_files[task], task, required=True)
+            cells = refs + load_cells(af_files[task], task, required=True)
         cells = with_cap(cells, STUDY_CAPS.get(task))
         for key, reference in REFERENCES.items():
             report[key].append(check_reference(cells, task, reference, args.actionflow))
         variants = [task[:-1] + d for d in "12"] if task.endswith("_D0") else []
         own = {
-            v: with_cap(_load_cells(args.results / f"{v}.json", v, required=False), STUDY_CAPS.get(v))
+            v: with_cap(load_cells(args.results / f"{v}.json", v, required=False), STUDY_CAPS.get(v))
             for v in variants
         }
         report["h3"] += check_variants(cells, task, args.actionflow, own)

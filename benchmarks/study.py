@@ -144,8 +144,9 @@ ABLATIONS: dict[str, Setting] = {
     "noise_sigma_0.2": Setting(
         "actionflow", ("--policy.noise_sigma=0.2",), "initial positions EEF + N(0, 0.2^2 I)"
     ),
-    # A tighter prior around the EEF than the package default (sigma 0.1 m, kappa 0.5 rad), on
-    # top of it and sampled like it: does a narrower start straighten the flow further?
+    # A tighter prior around the EEF than the package default (ActionFlowConfig.noise_sigma and
+    # noise_kappa), on top of it and sampled like it: does a narrower start straighten the flow
+    # further? The concentrated rotations are repeated because the ablation baseline is uniform.
     "guided_sigma_0.05": Setting(
         "actionflow",
         ("--policy.noise_rotation=concentrated", "--policy.noise_sigma=0.05"),
@@ -274,6 +275,23 @@ def task_files(items: list[str], flag: str) -> dict[str, Path]:
             raise ValueError(f"{flag}: task {task!r} is given twice")
         files[task] = Path(file)
     return files
+
+
+def load_cells(path: Path, task: str, required: bool) -> list[dict]:
+    """The cells of the store ``path`` (``run_results.py``'s JSON of ``task``); none if it is
+    missing and not ``required``.
+
+    Raises:
+        SystemExit: a required store that is missing, or a store of another task; it names both.
+    """
+    if not path.exists():
+        if required:
+            raise SystemExit(f"{path}: no such cell store (given for {task})")
+        return []
+    store = json.loads(path.read_text())
+    if store.get("task") != task:
+        raise SystemExit(f"{path}: a cell store of task {store.get('task')!r}, not {task!r}")
+    return store["cells"]
 
 
 def with_cap(cells: list[dict], episode_length: int | None) -> list[dict]:

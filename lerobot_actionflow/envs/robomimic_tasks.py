@@ -10,7 +10,8 @@
   stand and the tool hangs on the frame's hook, released.
 
 The success check is robosuite's ``_check_success()`` of each env. "EEF away" is robosuite's
-``1 - tanh(10 d) < 0.6``, i.e. the gripper site more than about 0.07 m from the object.
+``1 - tanh(10 d) < 0.6``, i.e. the gripper site more than :data:`EEF_AWAY_M` = atanh(0.4) / 10
+(about 0.042 m) from the object's centre; it does not check that the gripper has opened.
 Episode lengths follow robomimic's evaluation horizons.
 """
 
@@ -19,6 +20,10 @@ from __future__ import annotations
 import numpy as np
 
 from lerobot_actionflow.envs.tasks import Entity, TaskSpec, register_task
+
+#: The gripper-to-object distance (m) beyond which robosuite's Can and Square success checks
+#: count the gripper as away: ``1 - tanh(10 d) < 0.6``.
+EEF_AWAY_M = float(np.arctanh(0.4) / 10.0)
 
 
 def _holds(env, obj) -> bool:
@@ -32,24 +37,26 @@ def lift_subgoals(env) -> dict[str, bool]:
 
 
 def can_subgoals(env) -> dict[str, bool]:
-    """Can grasped, can over its cell of the target bin, released there (success)."""
+    """Can grasped; can inside its cell of the target bin (robosuite's ``not_in_bin``: over the
+    cell, below 0.1 m above the bin floor); placed there with the gripper away (success)."""
     can = env.objects[env.object_id]
     pos = env.sim.data.body_xpos[env.obj_body_id[can.name]]
     return {
         "can_grasped": _holds(env, can),
         "can_in_cell": not env.not_in_bin(pos, env.object_id),
-        "released": bool(env._check_success()),
+        "can_placed": bool(env._check_success()),
     }
 
 
 def square_subgoals(env) -> dict[str, bool]:
-    """Nut grasped, nut around the peg, released there (success)."""
+    """Nut grasped; nut around the peg (robosuite's ``on_peg``); placed there with the gripper
+    away (success)."""
     nut = env.nuts[env.nut_id]
     pos = env.sim.data.body_xpos[env.obj_body_id[nut.name]]
     return {
         "nut_grasped": _holds(env, nut),
         "nut_on_peg": bool(env.on_peg(pos, env.nut_id)),
-        "released": bool(env._check_success()),
+        "nut_placed": bool(env._check_success()),
     }
 
 
@@ -95,7 +102,7 @@ CAN = register_task(
         episode_length=400,
         description="Pick up the can and place it in its cell of the right bin.",
         success="the can is inside its cell of the target bin (below 0.1 m over the bin floor) "
-        "and the gripper is more than about 0.07 m away from it",
+        f"and the gripper is more than about {EEF_AWAY_M:.3f} m away from it",
         workspace_low=(-0.30, -0.55, 0.78),
         workspace_high=(0.40, 0.55, 1.40),
         # The target bin is part of the arena and robosuite's check uses its fixed position.
@@ -123,7 +130,7 @@ SQUARE = register_task(
         episode_length=400,
         description="Pick up the square nut and place it onto the square peg.",
         success="the nut's centre is within 0.03 m (x and y) of the square peg, less than 0.05 m "
-        "above the table top, and the gripper is more than about 0.07 m away from it",
+        f"above the table top, and the gripper is more than about {EEF_AWAY_M:.3f} m away from it",
         fixtures=("peg1", "peg2"),
     )
 )

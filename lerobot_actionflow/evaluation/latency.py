@@ -45,7 +45,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from lerobot_actionflow.envs.progress import NEAR_JOINT_LIMIT_RAD
+from lerobot_actionflow.envs.progress import MIN_JOINT_MARGIN, NEAR_JOINT_LIMIT_RAD, SUBGOALS_REACHED
 from lerobot_actionflow.policies.execution import execution_window, num_skipped
 from lerobot_actionflow.schema import ACTION_KEY
 
@@ -255,7 +255,7 @@ def summarize(records: list[dict[str, Any]]) -> dict[str, Any]:
     col = {
         k: np.array([r[k] for r in records], dtype=np.float64)
         for k in records[0]
-        if k not in ("seed", "subgoals_reached")
+        if k not in ("seed", SUBGOALS_REACHED)
     }
     chunks = max(col["chunks"].sum(), 1.0)
     return {
@@ -279,11 +279,11 @@ def summarize_progress(records: list[dict[str, Any]]) -> dict[str, Any]:
     all episodes and over the failed ones (``pc_near_joint_limit_failed``, NaN without failures);
     the mean of the episodes' smallest joint margins (``mean_min_joint_margin_rad``). ``{}`` for
     records without progress."""
-    if not records or "min_joint_margin_rad" not in records[0]:
+    if not records or MIN_JOINT_MARGIN not in records[0]:
         return {}
-    names = list(records[0]["subgoals_reached"])
-    reached = {n: np.array([r["subgoals_reached"][n] for r in records], dtype=bool) for n in names}
-    margin = np.array([r["min_joint_margin_rad"] for r in records], dtype=np.float64)
+    names = list(records[0][SUBGOALS_REACHED])
+    reached = {n: np.array([r[SUBGOALS_REACHED][n] for r in records], dtype=bool) for n in names}
+    margin = np.array([r[MIN_JOINT_MARGIN] for r in records], dtype=np.float64)
     near = margin < NEAR_JOINT_LIMIT_RAD
     failed = ~np.array([r["success"] for r in records], dtype=bool)
     return {

@@ -31,7 +31,7 @@ import gymnasium as gym
 import numpy as np
 from lerobot.envs.utils import NEW_ROLLOUT_OPTION
 
-from lerobot_actionflow.envs.progress import PROGRESS_INFO_KEY, EpisodeProgress
+from lerobot_actionflow.envs.progress import PROGRESS_INFO_KEY, EpisodeProgress, reports_progress
 from lerobot_actionflow.evaluation.smoothness import smoothness_figures
 from lerobot_actionflow.schema import ACTION_DIM, ACTION_GRIPPER_INDEX, ENV_AGENT_POS, POSE9_DIM
 
@@ -57,8 +57,8 @@ class LatencyHoldWrapper(gym.Wrapper):
         episode_records: one dict per finished episode: ``seed``, ``success``, ``control_steps``,
             ``held_steps``, ``chunks``, the figures of
             :func:`~lerobot_actionflow.evaluation.smoothness.smoothness_figures` and, when the
-            wrapped env reports it, the episode's progress (``subgoals_reached``,
-            ``min_joint_margin_rad``).
+            wrapped env reports it, the episode's progress (the record of
+            :class:`~lerobot_actionflow.envs.progress.EpisodeProgress`).
     """
 
     def __init__(self, env: gym.Env):
@@ -163,7 +163,7 @@ class LatencyHoldWrapper(gym.Wrapper):
 
 def _make_wrapped(gym_id: str, disable_env_checker: bool, gym_kwargs: dict) -> gym.Env:
     env = gym.make(gym_id, disable_env_checker=disable_env_checker, **gym_kwargs)
-    return LatencyHoldWrapper(EpisodeProgress(env))
+    return LatencyHoldWrapper(EpisodeProgress(env) if reports_progress(env) else env)
 
 
 def make_latency_envs(env_cfg, n_envs: int = 1, use_async_envs: bool = False) -> gym.vector.VectorEnv:

@@ -276,12 +276,13 @@ def _progress_table(done: list[dict]) -> list[str]:
     names = list(with_progress[0]["pc_subgoals"])
     lines = [
         "",
-        "Progress: % of episodes that reached each sub-goal (at any step, in task order); % of "
+        "Progress: % of episodes that reached each sub-goal (in task order: each counts once the "
+        "earlier ones are reached); % of "
         f"episodes with an arm joint within {NEAR_JOINT_LIMIT_RAD} rad of its limit, of all and of the "
         "failed ones; the mean of the episodes' smallest joint margins",
         "",
         "| series | latency | success | " + " | ".join(names) + " | near limit | near limit, failed | "
-        "min margin (deg) |",
+        "min margin (rad) |",
         "| --- | ---: | ---: |" + " ---: |" * (len(names) + 3),
     ]
     for r in with_progress:
@@ -289,7 +290,7 @@ def _progress_table(done: list[dict]) -> list[str]:
         reached = " | ".join(f"{r['pc_subgoals'].get(n, float('nan')):.0f}" for n in names)
         lines.append(
             f"| {_series(r)} | {lat} | {r['pc_success']:.0f} | {reached} | {r['pc_near_joint_limit']:.0f} | "
-            f"{r['pc_near_joint_limit_failed']:.0f} | {math.degrees(r['mean_min_joint_margin_rad']):.1f} |"
+            f"{r['pc_near_joint_limit_failed']:.0f} | {r['mean_min_joint_margin_rad']:.3f} |"
         )
     return lines
 

@@ -159,7 +159,43 @@ def test_candidates_from_another_store_are_held_against_the_tasks_own_references
     assert control["tasks"]["Lift"]["targets"][0]["gap"] == 50.0
 
 
+def _lift_store(tmp_path):
+    cells = [_cell("guided", 0, 2, 40.0), _cell("guided", 0, 10, 90.0)]
+    (tmp_path / "Lift.json").write_text(json.dumps({"task": "Lift", "cells": cells}))
+    few_step.main(["--tasks", "Lift", "--results", str(tmp_path)])  # the control: this store is valid
+
+
 @pytest.mark.parametrize("item", ["Lift", "=x.json", "Lift="])
-def test_a_store_item_that_is_not_task_equals_file_is_refused(tmp_path, item):
-    with pytest.raises(SystemExit):
+def test_a_store_item_that_is_not_task_equals_file_is_refused(tmp_path, capsys, item):
+    _lift_store(tmp_path)
+    with pytest.raises(SystemExit) as e:
         few_step.main(["--tasks", "Lift", "--results", str(tmp_path), "--candidates-results", item])
+    assert e.value.code == 2 and "--candidates-results takes TASK=FILE" in capsys.readouterr().err
+
+
+def test_a_candidates_store_that_is_missing_of_another_task_or_without_candidates_is_refused(tmp_path):
+    _lift_store(tmp_path)
+    other = tmp_path / "other.json"
+
+    def run(task="Lift"):
+        argv = ["--tasks", "Lift", "--results", str(tmp_path), "--candidates-results", f"{task}={other}"]
+        with pytest.raises(SystemExit) as e:
+            few_step.main(argv)
+        return str(e.value)
+
+    assert "no such cell store" in run() and str(other) in run()
+    other.write_text(json.dumps({"task": "Square", "cells": [_cell("guided", 0, 2, 60.0)]}))
+    assert "a cell store of task 'Square', not 'Lift'" in run()
+    reference = _cell("euclidean_flow", 0, 2, 50.0, study="comparison")
+    other.write_text(json.dumps({"task": "Lift", "cells": [reference]}))  # no candidate
+    assert "has no few-step candidate cells" in run()
+
+
+def test_a_candidates_store_for_a_task_not_asked_for_is_refused(tmp_path, capsys):
+    _lift_store(tmp_path)
+    other = tmp_path / "Square_other.json"
+    other.write_text(json.dumps({"task": "Square", "cells": [_cell("guided", 0, 2, 60.0)]}))
+    argv = ["--tasks", "Lift", "--results", str(tmp_path), "--candidates-results", f"Square={other}"]
+    with pytest.raises(SystemExit) as e:
+        few_step.main(argv)
+    assert e.value.code == 2 and "names tasks not in --tasks ['Lift']: ['Square']" in capsys.readouterr().err

@@ -9,7 +9,13 @@ import pytest
 from env_success_states import construct_success
 
 import lerobot_actionflow.envs as af_envs
-from lerobot_actionflow.envs.progress import PROGRESS_INFO_KEY, EpisodeProgress
+from lerobot_actionflow.envs.progress import (
+    MIN_JOINT_MARGIN,
+    PROGRESS_INFO_KEY,
+    SUBGOALS_REACHED,
+    EpisodeProgress,
+    reports_progress,
+)
 from lerobot_actionflow.experts import make_expert
 
 
@@ -31,18 +37,30 @@ def test_no_subgoal_holds_at_reset_and_every_placement_holds_in_a_success_state(
     assert not any(v for n, v in held.items() if _is_grasp(n)), held
 
 
-@pytest.mark.parametrize("task", ["Coffee_D0", "Square"])
+#: One variant of each task family: every family's sub-goal functions fire in a real episode.
+ONE_PER_FAMILY = [
+    "Lift", "Can", "Square", "ToolHang", "StackThree_D0", "Threading_D0", "ThreePieceAssembly_D0",
+    "Coffee_D0", "MugHang_D0",
+]  # fmt: skip
+
+
+def test_one_per_family_covers_every_family():
+    families = {gym_id.split("/")[1].removesuffix("-v0").split("_")[0] for gym_id in af_envs.GYM_IDS}
+    assert {t.split("_")[0] for t in ONE_PER_FAMILY} == families
+
+
+@pytest.mark.parametrize("task", ONE_PER_FAMILY)
 def test_an_expert_episode_reaches_every_subgoal_in_task_order(task):
     env = EpisodeProgress(gym.make(f"lerobot_actionflow/{task}-v0", render_mode=None))
     try:
         expert = make_expert(task, env)
         obs, info = env.reset(seed=0)
         expert.reset(np.random.default_rng(0))
-        assert not any(info[PROGRESS_INFO_KEY]["subgoals_reached"].values())
+        assert not any(info[PROGRESS_INFO_KEY][SUBGOALS_REACHED].values())
         first: dict[str, int] = {}
         for step in range(env.unwrapped.spec_task.episode_length):
             obs, _, terminated, truncated, info = env.step(expert.act(obs))
-            for name, reached in info[PROGRESS_INFO_KEY]["subgoals_reached"].items():
+            for name, reached in info[PROGRESS_INFO_KEY][SUBGOALS_REACHED].items():
                 if reached:
                     first.setdefault(name, step)
             if terminated or truncated:
@@ -52,7 +70,7 @@ def test_an_expert_episode_reaches_every_subgoal_in_task_order(task):
         assert list(first) == names, first  # all reached, first reached in task order
         steps = [first[n] for n in names]
         assert steps == sorted(steps) and steps[0] < steps[-1], first
-        assert np.isfinite(info[PROGRESS_INFO_KEY]["min_joint_margin_rad"])
+        assert np.isfinite(info[PROGRESS_INFO_KEY][MIN_JOINT_MARGIN])
     finally:
         env.close()
 
@@ -101,16 +119,46 @@ def test_episode_progress_keeps_a_subgoal_once_reached_and_the_smallest_margin_u
         ({"a": False, "b": True}, 0.6),
     ]
     env = EpisodeProgress(_ScriptedEnv(script))
-    at_start = {"subgoals_reached": {"a": False, "b": False}, "min_joint_margin_rad": 0.5}
+    at_start = {SUBGOALS_REACHED: {"a": False, "b": False}, MIN_JOINT_MARGIN: 0.5}
     _, info = env.reset()
     assert info[PROGRESS_INFO_KEY] == at_start
     seen = [env.step(np.zeros(1))[4] for _ in range(3)]
     assert [s["other"] for s in seen] == [1, 2, 3]  # the wrapped env's info is kept
-    assert [s[PROGRESS_INFO_KEY]["subgoals_reached"] for s in seen] == [
+    assert [s[PROGRESS_INFO_KEY][SUBGOALS_REACHED] for s in seen] == [
         {"a": True, "b": False},
         {"a": True, "b": False},
         {"a": True, "b": True},
     ]
-    assert [s[PROGRESS_INFO_KEY]["min_joint_margin_rad"] for s in seen] == [0.3, 0.3, 0.3]
+    assert [s[PROGRESS_INFO_KEY][MIN_JOINT_MARGIN] for s in seen] == [0.3, 0.3, 0.3]
     _, info = env.reset()  # a new episode forgets the last one
     assert info[PROGRESS_INFO_KEY] == at_start
+
+
+def test_a_later_subgoal_counts_only_once_the_earlier_ones_are_reached():
+    script = [
+        ({"a": False, "b": False}, 0.5),
+        ({"a": False, "b": True}, 0.5),  # "b" before "a" (a lid knocked shut with no pod): not reached
+        ({"a": True, "b": False}, 0.5),
+        ({"a": False, "b": False}, 0.5),
+        ({"a": False, "b": True}, 0.5),  # "b" after "a" was reached, though "a" no longer holds
+    ]
+    env = EpisodeProgress(_ScriptedEnv(script))
+    env.reset()
+    seen = [env.step(np.zeros(1))[4][PROGRESS_INFO_KEY][SUBGOALS_REACHED] for _ in range(4)]
+    assert seen == [
+        {"a": False, "b": False},
+        {"a": True, "b": False},
+        {"a": True, "b": False},
+        {"a": True, "b": True},
+    ]
+
+
+class _NoProgressEnv(_ScriptedEnv):
+    subgoals = None
+
+
+def test_episode_progress_refuses_an_env_without_subgoals_and_names_it():
+    assert reports_progress(_ScriptedEnv([({}, 1.0)]))
+    assert not reports_progress(_NoProgressEnv([({}, 1.0)]))
+    with pytest.raises(TypeError, match=r"subgoals.*_NoProgressEnv"):
+        EpisodeProgress(_NoProgressEnv([({}, 1.0)]))

@@ -14,7 +14,7 @@ import pytest
 import torch
 from gymnasium.vector import AutoresetMode
 
-from lerobot_actionflow.envs.progress import PROGRESS_INFO_KEY
+from lerobot_actionflow.envs.progress import MIN_JOINT_MARGIN, PROGRESS_INFO_KEY, SUBGOALS_REACHED
 from lerobot_actionflow.evaluation.latency import (
     ChunkLatency,
     Scheme,
@@ -244,7 +244,7 @@ class ProgressEnv(RecordingEnv):
     "moved" reached from the second step on, the joint margin falling by 0.1 rad a step."""
 
     def _progress(self):
-        return {"subgoals_reached": {"moved": self.t >= 2}, "min_joint_margin_rad": 1.0 - 0.1 * self.t}
+        return {SUBGOALS_REACHED: {"moved": self.t >= 2}, MIN_JOINT_MARGIN: 1.0 - 0.1 * self.t}
 
     def reset(self, *, seed=None, options=None):
         obs, info = super().reset(seed=seed, options=options)
@@ -265,17 +265,25 @@ def test_an_episode_record_holds_its_last_progress_and_the_summary_counts_it():
             if env.step(_action(0.0).numpy())[3]:
                 break
         records += env.pop_episode_records()
-    assert [r["subgoals_reached"] for r in records] == [{"moved": False}, {"moved": True}]
-    assert [r["min_joint_margin_rad"] for r in records] == pytest.approx([0.9, 0.7])
+    assert [r[SUBGOALS_REACHED] for r in records] == [{"moved": False}, {"moved": True}]
+    assert [r[MIN_JOINT_MARGIN] for r in records] == pytest.approx([0.9, 0.7])
     summary = summarize(records)
     assert summary["pc_subgoals"] == {"moved": 50.0}
     assert summary["pc_near_joint_limit"] == 0.0
     assert summary["mean_min_joint_margin_rad"] == pytest.approx(0.8)
-    records[1]["min_joint_margin_rad"] = 0.05  # within robosuite's 0.1 rad tolerance
+    records[1][MIN_JOINT_MARGIN] = 0.05  # within robosuite's 0.1 rad tolerance
     records[1]["success"] = True
     summary = summarize(records)
     assert summary["pc_near_joint_limit"] == 50.0 and summary["pc_near_joint_limit_failed"] == 0.0
-    # records without progress (an env without the wrapper) summarise as before
-    progress = ("subgoals_reached", "min_joint_margin_rad")
-    bare = [{k: v for k, v in r.items() if k not in progress} for r in records]
+    # the records of an env without sub-goals (no EpisodeProgress) give success and smoothness only
+    bare = [{k: v for k, v in r.items() if k not in (SUBGOALS_REACHED, MIN_JOINT_MARGIN)} for r in records]
     assert "pc_subgoals" not in summarize(bare) and summarize(bare)["pc_success"] == 50.0
+
+
+def test_the_latency_envs_wrap_progress_only_where_the_env_reports_it():
+    from lerobot_actionflow.envs.progress import EpisodeProgress
+    from lerobot_actionflow.evaluation.latency_hold import _make_wrapped
+
+    bare = _make_wrapped("CartPole-v1", True, {})  # a Gymnasium env with no sub-goals
+    assert isinstance(bare, LatencyHoldWrapper) and not isinstance(bare.env, EpisodeProgress)
+    bare.close()
