@@ -54,6 +54,7 @@ FEW_STEP = (
     "shortcut_concentrated",
     "shortcut_guided",
     "guided_sigma_0.05",
+    "guided_sigma_0.07",
     "guided_kappa_0.25",
     "solver_midpoint",
 )

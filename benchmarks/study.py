@@ -153,6 +153,12 @@ ABLATIONS: dict[str, Setting] = {
         "the package default (guided) with initial positions EEF + N(0, 0.05^2 I)",
         sampling=GUIDED,
     ),
+    "guided_sigma_0.07": Setting(
+        "actionflow",
+        ("--policy.noise_rotation=concentrated", "--policy.noise_sigma=0.07"),
+        "the package default (guided) with initial positions EEF + N(0, 0.07^2 I)",
+        sampling=GUIDED,
+    ),
     "guided_kappa_0.25": Setting(
         "actionflow",
         ("--policy.noise_rotation=concentrated", "--policy.noise_kappa=0.25"),
