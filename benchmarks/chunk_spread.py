@@ -7,18 +7,19 @@ ActionFlow draws a chunk's initial poses around the current EEF pose ``(R_e, p_e
 ``p_e + N(0, sigma^2 I)`` (``noise_sigma``) and rotations ``R_e Exp(kappa eps)``, ``eps ~ N(0, I)``
 (``noise_kappa``, concentrated). The flow carries them to the demonstrated chunk. This script
 measures the other end of those paths on a LeRobotDataset in the project's schema: for every
-frame ``t`` whose chunk ``t .. t + horizon - 1`` lies inside its episode (ActionFlow's
-``action_delta_indices``), and every action ``k`` of that chunk,
+frame ``t`` whose chunk ``t .. t + horizon - 1`` (ActionFlow's ``action_delta_indices``) lies
+inside its episode, and every action ``k`` of that chunk,
 
 * the offset ``R_e^T (p_k - p_e)`` of the target position in the EEF frame of frame ``t``
   (``observation.poses`` row 0), in metres;
 * the angle ``|Log(R_e^T R_k)|`` of the target rotation from the EEF's, in degrees.
 
-It prints their RMS and quantiles per dataset, and the same figures of the prior for each
-``--sigmas`` / ``--kappas`` (exact: ``|N(0, s^2 I_3)|`` has RMS ``s sqrt 3``; the angle of
-``Exp(kappa eps)`` is ``kappa |eps|``, chi with 3 degrees of freedom, while that is below pi, so
-a ``kappa`` whose top quantile passes pi is refused). The data's figures are invariant to a rigid
-motion of the whole episode, like the policy.
+The last ``horizon - 1`` frames of each episode start no full chunk and are left out (training
+also uses them, with padded, masked chunks). It prints their RMS and quantiles per dataset, and
+the same figures of the prior for each ``--sigmas`` / ``--kappas`` (exact: ``|N(0, s^2 I_3)|``
+has RMS ``s sqrt 3``; the angle of ``Exp(kappa eps)`` is ``kappa |eps|``, chi with 3 degrees of
+freedom, while that is below pi, so a ``kappa`` whose top quantile passes pi is refused). The
+data's figures are invariant to a rigid motion of the whole episode, like the policy.
 
 It does not say which prior trains the better policy: the prior's width against the data's is
 one input to that choice, measured here; success is in RESULTS.md.
@@ -84,8 +85,7 @@ def chunk_offsets(
     starts = np.flatnonzero((last < n) & (episode[np.minimum(last, n - 1)] == episode))
     rows = starts[:, None] + np.arange(horizon)  # (C, horizon)
     r_e, p_e = eef_r[starts][:, None], eef_p[starts][:, None]
-    r_et = np.swapaxes(r_e, -1, -2)
-    offsets = (r_et @ (act_p[rows] - p_e)[..., None])[..., 0]
+    offsets = rotations.apply(*rotations.inverse(r_e, p_e), act_p[rows])
     angles = rotations.geodesic_distance(r_e, act_r[rows])
     return offsets.reshape(-1, 3), angles.reshape(-1)
 

@@ -1,6 +1,7 @@
 """benchmarks/chunk_spread.py: chunk targets relative to the EEF are measured in the EEF frame,
 so a rigid motion of a whole episode leaves them unchanged (the control moves the targets alone);
-chunks never run past their episode; a known offset and angle come back exactly."""
+chunks never run past their episode; each action of a chunk is measured from the EEF of the
+chunk's first frame, and a known offset and angle come back exactly."""
 
 import sys
 from pathlib import Path
@@ -43,10 +44,12 @@ def test_only_chunks_that_end_inside_their_episode_are_counted():
     assert off.shape == (8 * 3, 3) and ang.shape == (8 * 3,)
 
 
-def test_a_known_offset_and_angle_come_back_in_the_eef_frame():
+def test_every_action_of_a_chunk_is_measured_from_the_eef_of_the_chunks_first_frame():
     yaw90 = Rotation.from_euler("z", 90, degrees=True).as_matrix()
-    eef_r, eef_p = np.stack([yaw90] * 2), np.zeros((2, 3))
-    # The target 0.1 m along world y is 0.1 m along the EEF's x; 30 degrees about x beyond the EEF.
+    # Frame 0's EEF is yawed 90 degrees at the origin; frame 1's EEF is elsewhere and turned.
+    eef_r = np.stack([yaw90, Rotation.from_euler("x", 50, degrees=True).as_matrix()])
+    eef_p = np.array([[0.0, 0.0, 0.0], [0.3, -0.2, 0.1]])
+    # Both targets lie 0.1 m along world y (the frame-0 EEF's x), 30 degrees about x beyond it.
     act_r = np.stack([yaw90 @ Rotation.from_euler("x", 30, degrees=True).as_matrix()] * 2)
     act_p = np.array([[0.0, 0.1, 0.0]] * 2)
     off, ang = chunk_spread.chunk_offsets(eef_r, eef_p, act_r, act_p, np.zeros(2), horizon=2)
