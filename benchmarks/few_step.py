@@ -55,6 +55,7 @@ FEW_STEP = (
     "shortcut_guided",
     "guided_sigma_0.05",
     "guided_sigma_0.07",
+    "shortcut_guided_sigma_0.05",
     "guided_kappa_0.25",
     "solver_midpoint",
 )

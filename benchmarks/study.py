@@ -159,6 +159,16 @@ ABLATIONS: dict[str, Setting] = {
         "the package default (guided) with initial positions EEF + N(0, 0.07^2 I)",
         sampling=GUIDED,
     ),
+    "shortcut_guided_sigma_0.05": Setting(
+        "actionflow",
+        (
+            "--policy.few_step_objective=shortcut",
+            "--policy.noise_rotation=concentrated",
+            "--policy.noise_sigma=0.05",
+        ),
+        "the shortcut objective with the tighter prior of guided_sigma_0.05, sampled like it",
+        sampling=GUIDED,
+    ),
     "guided_kappa_0.25": Setting(
         "actionflow",
         ("--policy.noise_rotation=concentrated", "--policy.noise_kappa=0.25"),
