@@ -10,6 +10,10 @@ Collects, from each task's study JSON (``benchmarks/results/<task>.json``, writt
   :data:`EXPONENTIAL_ROW` (``--settings default --time-spacings exponential``);
 - the reference policies (:data:`REFERENCES`, ``--study comparison``), where they were run.
 
+``--candidates-results TASK=FILE`` reads a task's candidates from another store instead, and
+``--add-candidates TASK=FILE`` adds a store's candidate cells (more seeds, or candidates trained on
+another machine) to them; each (setting, seed) must come from one store.
+
 It summarises them per row and IS at the last checkpoint (mean +- std over training seeds,
 :func:`study.summarise`), checks the issue's target per candidate (:func:`target_checks`),
 joins the chunk latency per candidate and IS (``bench_checkpoint_latency.py --json`` reports,
@@ -69,27 +73,61 @@ FEW_IS, FULL_IS, TARGET_GAP_POINTS = 2, 10, 5.0
 RESULTS = Path(__file__).resolve().parent / "results"
 
 
-def collect(task: str, results: Path, candidates_file: Path | None = None) -> dict:
+def _candidate_cells(cells: list[dict], task: str) -> tuple[list[dict], list[dict]]:
+    """The few-step candidates' cells and the ``default`` runs' exponential-grid cells of a store."""
+    candidates = [c for c in study_cells(cells, "ablation", task) if c["setting"] in FEW_STEP]
+    on_grid = study_cells(cells, "ablation", task, "exponential")
+    return candidates, [c for c in on_grid if c["setting"] == "default"]
+
+
+def collect(
+    task: str, results: Path, candidates_file: Path | None = None, added: tuple[Path, ...] = ()
+) -> dict:
     """``{"cells", "summary", "targets"}`` of the few-step candidates, the exponential-grid row
     and the references on ``task`` (its own evaluation task). The references come from the task's
-    file in ``results``; the candidates and the grid row too, or from ``candidates_file``."""
+    file in ``results``; the candidates and the grid row too, or from ``candidates_file``, plus
+    those of each store in ``added`` (more seeds or candidates, e.g. trained on another machine).
+
+    Raises:
+        SystemExit: a store without candidate cells; or a run (setting, seed, time grid) found in
+            two stores, which would mix two trainings under one seed; both name the store.
+    """
     path = results / f"{task}.json"
-    stored = with_cap(load_cells(path, task, required=True), STUDY_CAPS.get(task))
+    cap = STUDY_CAPS.get(task)
+    stored = with_cap(load_cells(path, task, required=True), cap)
     if candidates_file is not None:
         path = candidates_file
-        own = with_cap(load_cells(path, task, required=True), STUDY_CAPS.get(task))
+        own = with_cap(load_cells(path, task, required=True), cap)
     else:
         own = stored
-    candidates = [c for c in study_cells(own, "ablation", task) if c["setting"] in FEW_STEP]
-    on_grid = study_cells(own, "ablation", task, "exponential")
-    exponential = [c for c in on_grid if c["setting"] == "default"]
-    references = [c for c in study_cells(stored, "comparison", task) if c["setting"] in REFERENCES]
+    candidates, exponential = _candidate_cells(own, task)
     if candidates_file is not None and not candidates + exponential:
         raise SystemExit(
             f"--candidates-results {task}={candidates_file} has no few-step candidate cells: none of "
-            f"the settings {list(FEW_STEP)} evaluated on {task} with the study's episode cap "
-            f"{STUDY_CAPS.get(task)}"
+            f"the settings {list(FEW_STEP)} evaluated on {task} with the study's episode cap {cap}"
         )
+
+    def run_of(c: dict) -> tuple:
+        return c["setting"], c["seed"], c["time_spacing"]
+
+    source = {run_of(c): path for c in candidates + exponential}
+    for extra in added:
+        more, more_grid = _candidate_cells(with_cap(load_cells(extra, task, required=True), cap), task)
+        if not more + more_grid:
+            raise SystemExit(
+                f"--add-candidates {task}={extra} has no few-step candidate cells: none of the "
+                f"settings {list(FEW_STEP)} evaluated on {task} with the study's episode cap {cap}"
+            )
+        for run in sorted({run_of(c) for c in more + more_grid}, key=str):
+            if run in source:
+                setting, seed, spacing = run
+                raise SystemExit(
+                    f"--add-candidates {task}={extra}: {setting} seed {seed} ({spacing} grid) is "
+                    f"also in {source[run]}; a seed's cells must come from one training"
+                )
+            source[run] = extra
+        candidates, exponential = candidates + more, exponential + more_grid
+    references = [c for c in study_cells(stored, "comparison", task) if c["setting"] in REFERENCES]
     if not candidates + exponential + references:
         raise SystemExit(
             f"{path} has no few-step cells of task {task!r}: none of the settings {list(FEW_STEP)} "
@@ -226,14 +264,28 @@ def main(argv: list[str] | None = None) -> dict:
         help="read TASK's candidate cells from FILE (e.g. runs trained again on another machine); "
         "the references' cells still come from the task's own file",
     )
+    ap.add_argument(
+        "--add-candidates",
+        nargs="+",
+        default=[],
+        metavar="TASK=FILE",
+        help="add the candidate cells of FILE to TASK's (more seeds or candidates from another "
+        "store); a task may be named more than once, a (setting, seed) only in one store",
+    )
     args = ap.parse_args(argv)
     try:
         candidate_files = task_files(args.candidates_results, "--candidates-results")
+        added: dict[str, list[Path]] = {}
+        for item in args.add_candidates:
+            # task_files refuses a task given twice; here each item is its own one-task mapping
+            ((task, file),) = task_files([item], "--add-candidates").items()
+            added.setdefault(task, []).append(file)
     except ValueError as e:
         ap.error(str(e))
     tasks = [t for t in args.tasks.split(",") if t]
-    if unused := sorted(set(candidate_files) - set(tasks)):
-        ap.error(f"--candidates-results names tasks not in --tasks {tasks}: {unused}")
+    for flag, named in (("--candidates-results", candidate_files), ("--add-candidates", added)):
+        if unused := sorted(set(named) - set(tasks)):
+            ap.error(f"{flag} names tasks not in --tasks {tasks}: {unused}")
     latency = {}
     for path in args.latency:
         report = json.loads(path.read_text())
@@ -251,7 +303,8 @@ def main(argv: list[str] | None = None) -> dict:
             raise SystemExit(
                 f"no study results for task {task!r}: {args.results / f'{task}.json'} is missing"
             )
-        out["tasks"][task] = collect(task, args.results, candidate_files.get(task))
+        more = tuple(added.get(task, ()))
+        out["tasks"][task] = collect(task, args.results, candidate_files.get(task), more)
         print(format_task(task, out["tasks"][task], latency.get(task)) + "\n")
     path = args.output or args.results / "few_step.json"
     path.write_text(json.dumps(out, indent=1) + "\n")

@@ -199,3 +199,30 @@ def test_a_candidates_store_for_a_task_not_asked_for_is_refused(tmp_path, capsys
     with pytest.raises(SystemExit) as e:
         few_step.main(argv)
     assert e.value.code == 2 and "names tasks not in --tasks ['Lift']: ['Square']" in capsys.readouterr().err
+
+
+def test_added_stores_join_their_seeds_and_candidates_and_a_seed_in_two_stores_is_refused(tmp_path):
+    own = [_cell("solver_midpoint", 2, 2, 30.0), _cell("solver_midpoint", 2, 10, 100.0)]
+    (tmp_path / "Lift.json").write_text(json.dumps({"task": "Lift", "cells": own}))
+    more = [_cell("solver_midpoint", s, k, v) for s, k, v in ((0, 2, 40.0), (1, 2, 50.0), (0, 10, 90.0))]
+    more += [_cell("time_beta_noise", 0, 2, 70.0), _cell("squash_off", 0, 2, 10.0)]  # one not a candidate
+    added = tmp_path / "Lift_epyc.json"
+    added.write_text(json.dumps({"task": "Lift", "cells": more}))
+    argv = ["--tasks", "Lift", "--results", str(tmp_path), "--output", str(tmp_path / "f.json")]
+    out = few_step.main([*argv, "--add-candidates", f"Lift={added}"])
+    assert out["tasks"]["Lift"]["cells"] == own + more[:4]
+    rows = {(r["setting"], r["inference_steps"]): r for r in out["tasks"]["Lift"]["summary"]}
+    midpoint = rows["solver_midpoint", 2]
+    assert midpoint["last"] == pytest.approx((40.0, 8.165), abs=1e-3) and midpoint["last_seeds"] == 3
+    assert rows["time_beta_noise", 2]["last"] == (70.0, 0.0)
+    # the control passes; the same seed of a setting in a second store is refused, naming both
+    clash = tmp_path / "Lift_clash.json"
+    clash.write_text(json.dumps({"task": "Lift", "cells": [_cell("solver_midpoint", 2, 4, 90.0)]}))
+    with pytest.raises(SystemExit) as e:
+        few_step.main([*argv, "--add-candidates", f"Lift={added}", f"Lift={clash}"])
+    assert "solver_midpoint seed 2" in str(e.value)
+    assert str(clash) in str(e.value) and str(tmp_path / "Lift.json") in str(e.value)
+    empty = tmp_path / "Lift_empty.json"
+    empty.write_text(json.dumps({"task": "Lift", "cells": [_cell("squash_off", 0, 2, 10.0)]}))
+    with pytest.raises(SystemExit, match="has no few-step candidate cells"):
+        few_step.main([*argv, "--add-candidates", f"Lift={empty}"])
