@@ -169,6 +169,14 @@ ABLATIONS: dict[str, Setting] = {
         "the shortcut objective with the tighter prior of guided_sigma_0.05, sampled like it",
         sampling=GUIDED,
     ),
+    # The squash of translations (tanh(10 d)) on top of the package default: the ablation baseline
+    # says whether tanh helps with uniform rotations; this says whether it helps the default.
+    "guided_squash_off": Setting(
+        "actionflow",
+        ("--policy.noise_rotation=concentrated", "--policy.squash_translations=false"),
+        "the package default (guided) with translations scaled (10 d) but not squashed by tanh",
+        sampling=GUIDED,
+    ),
     "guided_kappa_0.25": Setting(
         "actionflow",
         ("--policy.noise_rotation=concentrated", "--policy.noise_kappa=0.25"),
