@@ -70,6 +70,14 @@ ABLATIONS: dict[str, Setting] = {
     ),
     "scale_3": Setting("actionflow", ("--policy.translation_scale=3",), "tanh(3 d)"),
     "scale_1": Setting("actionflow", ("--policy.translation_scale=1",), "tanh(d)"),
+    # The loss measures translation errors in units of 1 / translation_scale metres, so a smaller
+    # scale also weights translations less (by the scale squared). This setting restores the
+    # weight, (10 / 3)^2, and changes only what the network sees.
+    "scale_3_same_loss": Setting(
+        "actionflow",
+        ("--policy.translation_scale=3", "--policy.loss_weight_translation=11.11111111111111"),
+        "tanh(3 d), translation loss weighted as at scale 10",
+    ),
     "scale_3_squash_off": Setting(
         "actionflow",
         ("--policy.translation_scale=3", "--policy.squash_translations=false"),
