@@ -78,7 +78,10 @@ class ActionflowConfig(PreTrainedConfig, RealTimeExecutionConfig):
             every camera on the EEF.
         dim, num_layers [4], num_heads, head_dim, num_query_points, num_value_points,
             mlp_ratio, dropout: the SE(3)-invariant transformer.
-        adaptation_frame, translation_scale [10], squash_translations [tanh]: App. F.2.
+        adaptation_frame, translation_scale [10], squash_translations [tanh]: App. F.2. The
+            scale also sets the unit of the translation loss (velocity errors times
+            ``translation_scale``, squared), so a scale s weights translations (s / 10)^2 as
+            much as the default; ``loss_weight_translation = (10 / s)^2`` restores the weight.
         translation_velocity_frame: the frame of the network's translation velocity: ``"pose"``
             [App. C], the body frame of the current action pose, or ``"eef"``, the EEF frame of
             the latest observation, in which the regression target is constant along the path
